@@ -1,0 +1,38 @@
+"""IsoSimilarityTF: automatic transfer functions for direct volume rendering.
+
+The pipeline, one module per step: :mod:`.quantize` (isovalue bins), :mod:`.cells` (unit cells and octree levels),
+:mod:`.similarity` (hierarchical isovalue similarity), :mod:`.clustering` (affinity propagation), :mod:`.classes`
+(ranked, coloured classes), :mod:`.transfer_function` (VTK objects and Slicer files), tied together by
+:func:`design_transfer_function`. Needs numpy, scikit-learn (at clustering time) and VTK; never Qt or the Slicer
+application, so it runs headless.
+"""
+
+from .cells import octree_levels, unit_cell_intervals
+from .classes import IsovalueClass
+from .clustering import ClusteringError, ClusteringResult, cluster_isovalues
+from .design import TransferFunctionDesign, design_transfer_function
+from .quantize import Quantization, quantize
+from .similarity import IsovalueSimilarity, isovalue_similarity, similarity_matrix
+from .transfer_function import TransferFunctionFileError, TransferFunctionPoints, read_vp, read_vp_json
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "ClusteringError",
+    "ClusteringResult",
+    "IsovalueClass",
+    "IsovalueSimilarity",
+    "Quantization",
+    "TransferFunctionDesign",
+    "TransferFunctionFileError",
+    "TransferFunctionPoints",
+    "cluster_isovalues",
+    "design_transfer_function",
+    "isovalue_similarity",
+    "octree_levels",
+    "quantize",
+    "read_vp",
+    "read_vp_json",
+    "similarity_matrix",
+    "unit_cell_intervals",
+]

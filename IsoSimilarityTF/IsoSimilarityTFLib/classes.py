@@ -1,0 +1,175 @@
+"""Step 5 of the pipeline: turn isovalue clusters into ranked, coloured classes of voxels."""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+BACKGROUND_RULES = ("largest", "lowest", "none")
+
+# Kelly's colours of maximum contrast (without white and black), so neighbouring classes stay distinguishable.
+PALETTE: tuple[tuple[float, float, float], ...] = tuple(
+    tuple(int(code[i : i + 2], 16) / 255.0 for i in (0, 2, 4))
+    for code in (
+        "F3C300", "875692", "F38400", "A1CAF1", "BE0032", "C2B280", "848482", "008856", "E68FAC", "0067A5",
+        "F99379", "604E97", "F6A600", "B3446C", "DCD300", "882D17", "8DB600", "654522", "E25822", "2B3D26",
+    )
+)  # fmt: skip
+
+# Default opacity grows with the class's intensity rank: dense tissue (bone, contrast) opaque, soft tissue
+# translucent, and the faint classes just above the background nearly clear, so they do not fog the view.
+MIN_OPACITY = 0.02
+MAX_OPACITY = 0.8
+OPACITY_EXPONENT = 2.0
+
+
+@dataclass
+class IsovalueClass:
+    """One class of isovalues and the voxels it holds.
+
+    Attributes:
+        id: class id, 0 for the lowest exemplar isovalue, increasing with intensity.
+        rank: 1 for the class with the most voxels, 2 for the next, ...
+        voxels: number of voxels whose value falls in the class's isovalue bins.
+        fraction: ``voxels`` over all voxels.
+        isovalue_bins: the class's bins, ascending.
+        value_ranges: ``[low, high]`` in volume units for each run of consecutive bins.
+        exemplar_bin: the bin affinity propagation chose as the class's exemplar.
+        color: ``[r, g, b]`` in 0..1.
+        opacity: opacity in 0..1 when shown.
+        visible: whether the class is shown.
+        background: whether this is the background class (hidden by default).
+    """
+
+    id: int
+    rank: int
+    voxels: int
+    fraction: float
+    isovalue_bins: list[int]
+    value_ranges: list[list[float]]
+    exemplar_bin: int
+    color: list[float] = field(default_factory=lambda: [1.0, 1.0, 1.0])
+    opacity: float = 1.0
+    visible: bool = True
+    background: bool = False
+
+    def to_dict(self) -> dict:
+        return {
+            "id": self.id,
+            "rank": self.rank,
+            "voxels": self.voxels,
+            "fraction": self.fraction,
+            "isovalue_bins": list(self.isovalue_bins),
+            "value_ranges": [list(r) for r in self.value_ranges],
+            "exemplar_bin": self.exemplar_bin,
+            "color": list(self.color),
+            "opacity": self.opacity,
+            "visible": self.visible,
+            "background": self.background,
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "IsovalueClass":
+        return cls(
+            id=int(data["id"]),
+            rank=int(data["rank"]),
+            voxels=int(data["voxels"]),
+            fraction=float(data["fraction"]),
+            isovalue_bins=[int(b) for b in data["isovalue_bins"]],
+            value_ranges=[[float(lo), float(hi)] for lo, hi in data["value_ranges"]],
+            exemplar_bin=int(data["exemplar_bin"]),
+            color=[float(c) for c in data["color"]],
+            opacity=float(data["opacity"]),
+            visible=bool(data["visible"]),
+            background=bool(data["background"]),
+        )
+
+
+def runs(sorted_bins: np.ndarray) -> list[tuple[int, int]]:
+    """Maximal runs of consecutive integers, as ``(first, last)`` pairs."""
+    sorted_bins = np.asarray(sorted_bins)
+    if sorted_bins.size == 0:
+        return []
+    breaks = np.flatnonzero(np.diff(sorted_bins) != 1)
+    firsts = np.concatenate(([sorted_bins[0]], sorted_bins[breaks + 1]))
+    lasts = np.concatenate((sorted_bins[breaks], [sorted_bins[-1]]))
+    return [(int(a), int(b)) for a, b in zip(firsts, lasts)]
+
+
+def default_opacities(classes: list[IsovalueClass]) -> list[float]:
+    """Default opacity per class: 0 for the background, else rising with intensity order among the others."""
+    ordered = sorted((c.exemplar_bin, c.id) for c in classes if not c.background)
+    position = {class_id: i for i, (_, class_id) in enumerate(ordered)}
+    span = max(len(ordered) - 1, 1)
+    return [
+        0.0 if c.background else MIN_OPACITY + (MAX_OPACITY - MIN_OPACITY) * (position[c.id] / span) ** OPACITY_EXPONENT
+        for c in classes
+    ]
+
+
+def default_colors(classes: list[IsovalueClass]) -> list[list[float]]:
+    """Default colour per class: palette colours in rank order of the non-background classes, grey for background."""
+    others = sorted((c.rank, c.id) for c in classes if not c.background)
+    color_of = {class_id: list(PALETTE[i % len(PALETTE)]) for i, (_, class_id) in enumerate(others)}
+    return [[0.5, 0.5, 0.5] if c.background else color_of[c.id] for c in classes]
+
+
+def build_classes(
+    labels: np.ndarray,
+    exemplars: np.ndarray,
+    bin_voxels: np.ndarray,
+    edges: np.ndarray,
+    *,
+    background: str = "largest",
+    max_classes: int = 15,
+) -> list[IsovalueClass]:
+    """Rank classes by voxel count, pick the background, and give every class its default look.
+
+    Args:
+        labels: ``(n_bins,)`` class id per isovalue bin (ids ``0..n_classes-1``).
+        exemplars: ``(n_classes,)`` exemplar bin per class id.
+        bin_voxels: ``(n_bins,)`` number of voxels per bin (the volume's histogram).
+        edges: ``(n_bins + 1,)`` bin edges in volume units.
+        background: ``"largest"`` (the class with most voxels, thesis), ``"lowest"`` (the class of the lowest
+            occupied bin) or ``"none"``.
+        max_classes: how many non-background classes are shown, largest first; the rest are kept but hidden.
+
+    Returns:
+        Classes in id order.
+    """
+    if background not in BACKGROUND_RULES:
+        raise ValueError(f"background must be one of {BACKGROUND_RULES}; got {background!r}")
+    if isinstance(max_classes, bool) or not isinstance(max_classes, (int, np.integer)) or max_classes < 0:
+        raise ValueError(f"max_classes must be a non-negative integer; got {max_classes!r}")
+    labels = np.asarray(labels)
+    n_classes = int(np.asarray(exemplars).size)
+    voxels = np.bincount(labels, weights=bin_voxels, minlength=n_classes).astype(np.int64)
+    total = int(np.sum(bin_voxels))
+    # Rank by voxel count, ties broken by id so the order is deterministic.
+    order = sorted(range(n_classes), key=lambda k: (-voxels[k], k))
+    rank = {class_id: r + 1 for r, class_id in enumerate(order)}
+    if background == "largest":
+        background_id = order[0]
+    elif background == "lowest":
+        background_id = int(labels[np.flatnonzero(bin_voxels)[0]])
+    else:
+        background_id = None
+
+    classes = []
+    for class_id in range(n_classes):
+        members = np.flatnonzero(labels == class_id)
+        classes.append(
+            IsovalueClass(
+                id=class_id,
+                rank=rank[class_id],
+                voxels=int(voxels[class_id]),
+                fraction=voxels[class_id] / total if total else 0.0,
+                isovalue_bins=[int(b) for b in members],
+                value_ranges=[[float(edges[a]), float(edges[b + 1])] for a, b in runs(members)],
+                exemplar_bin=int(exemplars[class_id]),
+                background=class_id == background_id,
+            )
+        )
+    shown = [class_id for class_id in order if class_id != background_id][:max_classes]
+    for c, color, opacity in zip(classes, default_colors(classes), default_opacities(classes)):
+        c.color, c.opacity, c.visible = color, opacity, c.id in shown
+    return classes

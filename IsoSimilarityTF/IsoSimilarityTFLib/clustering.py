@@ -1,0 +1,156 @@
+"""Step 4 of the pipeline: group isovalues with affinity propagation (Frey & Dueck 2007), no class count needed."""
+
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Optional, Union
+
+import numpy as np
+
+PREFERENCES = ("median", "minimum")
+
+
+class ClusteringError(RuntimeError):
+    """Affinity propagation could not give a usable grouping (no exemplar, or no convergence where it is required)."""
+
+
+@dataclass(frozen=True)
+class ClusteringResult:
+    """Classes of isovalues.
+
+    Attributes:
+        labels: ``(n_bins,)`` int, class id per isovalue; ids run from 0 in increasing order of exemplar isovalue.
+        exemplars: ``(n_classes,)`` int, the exemplar isovalue (bin) of each class.
+        n_iter: iterations affinity propagation ran.
+        converged: whether it converged before ``max_iter`` (if not, the grouping is the last iteration's).
+        preference: the preference value used (affinity units, <= 0).
+        clustered: ``(n_bins,)`` bool, isovalues that took part; the others (empty isovalues) took the class of the
+            nearest one that did.
+    """
+
+    labels: np.ndarray
+    exemplars: np.ndarray
+    n_iter: int
+    converged: bool
+    preference: float
+    clustered: np.ndarray
+
+    @property
+    def n_classes(self) -> int:
+        return int(self.exemplars.size)
+
+
+def preference_value(affinity: np.ndarray, preference: Union[str, float]) -> float:
+    """The AP preference: median or minimum of the off-diagonal affinities, or the number given."""
+    if isinstance(preference, str):
+        if preference not in PREFERENCES:
+            raise ValueError(f"preference must be one of {PREFERENCES} or a number; got {preference!r}")
+        off_diagonal = affinity[~np.eye(affinity.shape[0], dtype=bool)]
+        return float(np.median(off_diagonal) if preference == "median" else off_diagonal.min())
+    value = float(preference)
+    if not np.isfinite(value):
+        raise ValueError(f"preference must be finite; got {preference!r}")
+    return value
+
+
+def _nearest(members: np.ndarray, n_bins: int) -> np.ndarray:
+    """For each bin, the nearest member bin (the lower one on ties)."""
+    right = np.searchsorted(members, np.arange(n_bins)).clip(0, members.size - 1)
+    left = (right - 1).clip(0, members.size - 1)
+    bins = np.arange(n_bins)
+    use_left = np.abs(bins - members[left]) <= np.abs(members[right] - bins)
+    return np.where(use_left, members[left], members[right])
+
+
+def cluster_isovalues(
+    similarity: np.ndarray,
+    *,
+    preference: Union[str, float] = "median",
+    damping: float = 0.5,
+    max_iter: int = 200,
+    convergence_iter: int = 15,
+    empty_isovalues: Optional[Sequence[int]] = None,
+) -> ClusteringResult:
+    """Cluster isovalues by affinity propagation on ``similarity - 1`` (the negated distance).
+
+    Args:
+        similarity: ``(n_bins, n_bins)`` symmetric similarity in [0, 1] (from :func:`similarity_matrix`).
+        preference: ``"median"`` or ``"minimum"`` of the off-diagonal affinities, or a number (affinity units,
+            typically in [-1, 0]); higher gives more classes.
+        damping: AP damping factor in [0.5, 1).
+        max_iter: most iterations.
+        convergence_iter: iterations with unchanged exemplars that count as converged.
+        empty_isovalues: isovalues left out of AP (they cross no cell); each takes the class of the nearest other
+            isovalue. Default: those whose row of ``similarity`` is all zero.
+
+    Returns:
+        The classes; deterministic for the same input. ``converged`` is reported, not enforced.
+
+    Raises:
+        ValueError: bad arguments. ClusteringError: no isovalue to cluster, or AP ended with no exemplar.
+    """
+    from sklearn.cluster import affinity_propagation
+    from sklearn.exceptions import ConvergenceWarning
+
+    similarity = np.asarray(similarity, dtype=np.float64)
+    if similarity.ndim != 2 or similarity.shape[0] != similarity.shape[1]:
+        raise ValueError(f"similarity must be a square matrix; got shape {similarity.shape}")
+    if not np.isfinite(similarity).all():
+        raise ValueError("similarity must be finite")
+    if not 0.5 <= damping < 1:
+        raise ValueError(f"damping must be in [0.5, 1); got {damping!r}")
+    for name, value in (("max_iter", max_iter), ("convergence_iter", convergence_iter)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise ValueError(f"{name} must be a positive integer; got {value!r}")
+    n_bins = similarity.shape[0]
+    clustered = np.ones(n_bins, dtype=bool)
+    if empty_isovalues is None:
+        clustered &= similarity.any(axis=1)
+    else:
+        clustered[np.asarray(empty_isovalues, dtype=np.intp)] = False
+    members = np.flatnonzero(clustered)
+    if members.size == 0:
+        raise ClusteringError("no isovalue crosses any cell: there is nothing to cluster")
+
+    affinity = similarity[np.ix_(members, members)] - 1.0
+    if members.size == 1:
+        member_labels, exemplars, n_iter, converged = np.zeros(1, dtype=np.intp), np.zeros(1, dtype=np.intp), 0, True
+        pref = 0.0
+    else:
+        pref = preference_value(affinity, preference)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            exemplars, member_labels, n_iter = affinity_propagation(
+                affinity,
+                preference=pref,
+                damping=damping,
+                max_iter=int(max_iter),
+                convergence_iter=int(convergence_iter),
+                return_n_iter=True,
+                random_state=0,
+            )
+        converged = not any(issubclass(w.category, ConvergenceWarning) for w in caught)
+        exemplars = np.asarray(exemplars, dtype=np.intp)
+        if exemplars.size == 0:
+            raise ClusteringError(
+                f"affinity propagation found no exemplar in {n_iter} iterations; "
+                "raise max_iter or damping (e.g. max_iter=1000, damping=0.9)"
+            )
+    # Class ids in order of exemplar isovalue, so class 0 is the lowest intensity group.
+    exemplar_bins = members[exemplars]
+    order = np.argsort(exemplar_bins, kind="stable")
+    rank_of = np.empty_like(order)
+    rank_of[order] = np.arange(order.size)
+    labels = np.empty(n_bins, dtype=np.intp)
+    labels[members] = rank_of[member_labels]
+    if members.size < n_bins:
+        nearest = _nearest(members, n_bins)
+        labels[~clustered] = labels[nearest[~clustered]]
+    return ClusteringResult(
+        labels=labels,
+        exemplars=exemplar_bins[order],
+        n_iter=int(n_iter),
+        converged=bool(converged),
+        preference=pref,
+        clustered=clustered,
+    )

@@ -1,0 +1,135 @@
+"""Step 1 of the pipeline: map a scalar volume to ``n_bins`` isovalues, keeping the way back to its units."""
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+MAX_BINS = 4096
+# Voxels converted to float64 at a time: bounds the temporary memory of float volumes to ~64 MB.
+_SLAB_VOXELS = 1 << 23
+# Integer volumes whose value span is at most this many values are quantized through a lookup table.
+_MAX_LOOKUP_SPAN = 1 << 22
+
+
+@dataclass(frozen=True)
+class Quantization:
+    """A volume quantized to isovalue bins.
+
+    Bin ``b`` holds the values in ``[edges[b], edges[b + 1])`` (the last bin also holds ``value_range[1]``), in the
+    units of the volume (HU for CT, raw units for MRI).
+
+    Attributes:
+        bins: integer array, same shape as the volume, values in ``[0, n_bins)``; uint8 when ``n_bins <= 256``,
+            else uint16.
+        n_bins: number of isovalues.
+        value_range: ``(low, high)`` in volume units, the values mapped to the first and last bin edge.
+    """
+
+    bins: np.ndarray
+    n_bins: int
+    value_range: tuple[float, float]
+
+    @property
+    def bin_width(self) -> float:
+        """Width of one bin in volume units."""
+        low, high = self.value_range
+        return (high - low) / self.n_bins
+
+    @property
+    def edges(self) -> np.ndarray:
+        """Bin edges in volume units, shape ``(n_bins + 1,)``, strictly increasing."""
+        low, high = self.value_range
+        return np.linspace(low, high, self.n_bins + 1)
+
+    @property
+    def isovalues(self) -> np.ndarray:
+        """Bin centres in volume units, shape ``(n_bins,)``: the isovalue each bin stands for."""
+        edges = self.edges
+        return 0.5 * (edges[:-1] + edges[1:])
+
+    def value_to_bin(self, values: np.ndarray) -> np.ndarray:
+        """Bin index of each value (values outside ``value_range`` go to the first or last bin)."""
+        return _bin_index(np.asarray(values, dtype=np.float64), self.value_range, self.n_bins)
+
+
+def validate_volume(values: np.ndarray) -> np.ndarray:
+    """Return ``values`` as an array if it is a 3-D real scalar volume, else raise ``ValueError`` saying why."""
+    values = np.asarray(values)
+    numeric = np.issubdtype(values.dtype, np.integer) or np.issubdtype(values.dtype, np.floating)
+    if values.dtype == bool or not numeric:
+        raise ValueError(f"expected a scalar volume of integers or floats; got dtype {values.dtype}")
+    if values.ndim == 4 and values.shape[-1] in (2, 3, 4):
+        raise ValueError(
+            f"expected a scalar volume; got {values.shape[-1]} components per voxel (shape {values.shape}): "
+            "convert vector/RGB volumes to a scalar volume first"
+        )
+    if values.ndim != 3:
+        raise ValueError(f"expected a 3-D scalar volume; got a {values.ndim}-D array of shape {values.shape}")
+    if min(values.shape) < 2:
+        raise ValueError(
+            f"expected at least 2 voxels along every axis (a unit cell is 2x2x2 voxels); got shape {values.shape}"
+        )
+    return values
+
+
+def _finite_range(values: np.ndarray) -> tuple[float, float]:
+    if np.issubdtype(values.dtype, np.floating):
+        finite = np.isfinite(values)
+        if not finite.all():
+            n_bad = int(values.size - np.count_nonzero(finite))
+            raise ValueError(f"the volume has {n_bad} NaN or infinite voxels; replace or mask them first")
+    return float(values.min()), float(values.max())
+
+
+def _bin_index(values: np.ndarray, value_range: tuple[float, float], n_bins: int) -> np.ndarray:
+    low, high = value_range
+    scaled = (values - low) * (n_bins / (high - low))
+    return np.clip(np.floor(scaled), 0, n_bins - 1).astype(np.int64)
+
+
+def quantize(values: np.ndarray, n_bins: int = 256, value_range: Optional[tuple[float, float]] = None) -> Quantization:
+    """Quantize a 3-D scalar volume to ``n_bins`` equal-width isovalue bins.
+
+    Args:
+        values: 3-D array of integers or floats, any axis order.
+        n_bins: number of isovalues, 2 to 4096.
+        value_range: ``(low, high)`` in volume units; default: the volume's minimum and maximum. Values outside it
+            are clamped to the first or last bin.
+
+    Raises:
+        ValueError: on a volume that is not 3-D scalar, holds NaN/inf, is constant, or on a bad ``n_bins``/range.
+    """
+    values = validate_volume(values)
+    if isinstance(n_bins, bool) or not isinstance(n_bins, (int, np.integer)) or not 2 <= n_bins <= MAX_BINS:
+        raise ValueError(f"n_bins must be an integer from 2 to {MAX_BINS}; got {n_bins!r}")
+    n_bins = int(n_bins)
+    data_range = _finite_range(values)
+    if value_range is None:
+        if data_range[0] == data_range[1]:
+            raise ValueError(f"the volume is constant (every voxel is {data_range[0]:g}): there is nothing to classify")
+        value_range = data_range
+    else:
+        low, high = (float(v) for v in value_range)
+        if not (np.isfinite(low) and np.isfinite(high) and low < high):
+            raise ValueError(f"value_range must be two finite numbers with low < high; got {value_range!r}")
+        value_range = (low, high)
+
+    out_dtype = np.uint8 if n_bins <= 256 else np.uint16
+    bins = np.empty(values.shape, dtype=out_dtype)
+    span = data_range[1] - data_range[0]
+    if np.issubdtype(values.dtype, np.integer) and span < _MAX_LOOKUP_SPAN:
+        # Exact and fast: every distinct integer value is binned once, then looked up.
+        offset = int(data_range[0])
+        table = _bin_index(np.arange(offset, offset + int(span) + 1, dtype=np.float64), value_range, n_bins)
+        table = table.astype(out_dtype)
+        flat_in, flat_out = values.reshape(-1), bins.reshape(-1)
+        for start in range(0, flat_in.size, _SLAB_VOXELS):
+            chunk = flat_in[start : start + _SLAB_VOXELS].astype(np.int64) - offset
+            flat_out[start : start + _SLAB_VOXELS] = table[chunk]
+    else:
+        flat_in, flat_out = values.reshape(-1), bins.reshape(-1)
+        for start in range(0, flat_in.size, _SLAB_VOXELS):
+            chunk = flat_in[start : start + _SLAB_VOXELS].astype(np.float64)
+            flat_out[start : start + _SLAB_VOXELS] = _bin_index(chunk, value_range, n_bins)
+    return Quantization(bins=bins, n_bins=n_bins, value_range=value_range)
