@@ -1,0 +1,367 @@
+"""Tests for IsoSimilarityTFLib.volume_io: format round trips, geometry, DICOM series, clear errors, real data."""
+
+from __future__ import annotations
+
+import gzip
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from IsoSimilarityTFLib.volume_io import Volume, VolumeReadError, read_volume, real_dataset_path, write_volume
+
+SHAPE = (5, 7, 9)  # (k, j, i): odd and different along every axis
+SPACING = (0.7, 1.3, 2.1)  # anisotropic, mm along i, j, k
+ORIGIN = (10.5, -20.25, 33.0)  # RAS mm
+
+
+def _rotation(degrees: float, axis: int) -> np.ndarray:
+    c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
+    a, b = [n for n in range(3) if n != axis]
+    rot = np.eye(3)
+    rot[a, a], rot[a, b], rot[b, a], rot[b, b] = c, -s, s, c
+    return rot
+
+
+def _volume(left_handed: bool) -> Volume:
+    rng = np.random.default_rng(1234)
+    values = rng.integers(-1024, 3072, size=SHAPE).astype(np.int16)
+    values[0, 0, 0], values[-1, -1, -1] = -32768, 32767  # int16 extremes must survive
+    directions = _rotation(25.0, 2) @ _rotation(-10.0, 0)
+    if left_handed:
+        directions[:, 2] *= -1.0  # like most CT series once converted to RAS
+    return Volume(values, SPACING, ORIGIN, directions, "phantom")
+
+
+def _assert_same(read: Volume, expected: Volume, geometry: bool = True) -> None:
+    assert read.values.dtype == expected.values.dtype
+    assert read.values.shape == expected.values.shape
+    np.testing.assert_array_equal(read.values, expected.values)
+    if geometry:
+        np.testing.assert_allclose(read.spacing, expected.spacing, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(read.origin, expected.origin, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(read.directions, expected.directions, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(read.ijk_to_ras(), expected.ijk_to_ras(), rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("left_handed", [False, True], ids=["right-handed", "left-handed"])
+@pytest.mark.parametrize("suffix", [".nrrd", ".nhdr", ".mha", ".mhd", ".nii", ".nii.gz", ".vti"])
+def test_round_trip_keeps_values_and_geometry(tmp_path: Path, suffix: str, left_handed: bool, capfd) -> None:
+    volume = _volume(left_handed)
+    path = tmp_path / f"phantom{suffix}"
+    write_volume(volume, path)
+    read = read_volume(path)
+    _assert_same(read, volume)
+    assert read.name == "phantom"
+    assert capfd.readouterr().err == ""  # nothing from VTK on stderr
+
+
+def test_round_trip_npy_keeps_values_only(tmp_path: Path) -> None:
+    volume = _volume(left_handed=False)
+    path = tmp_path / "phantom.npy"
+    write_volume(volume, path)
+    read = read_volume(path)
+    _assert_same(read, volume, geometry=False)
+    assert read.spacing == (1.0, 1.0, 1.0)
+    assert read.origin == (0.0, 0.0, 0.0)
+    np.testing.assert_array_equal(read.directions, np.eye(3))
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.int32, np.float32, np.float64])
+def test_round_trip_other_dtypes(tmp_path: Path, dtype: type) -> None:
+    values = (np.arange(np.prod(SHAPE)) % 200).reshape(SHAPE).astype(dtype)
+    volume = Volume(values, SPACING, ORIGIN, np.eye(3), "v")
+    for suffix in (".nrrd", ".mha", ".nii.gz", ".vti"):
+        write_volume(volume, tmp_path / f"v{suffix}")
+        _assert_same(read_volume(tmp_path / f"v{suffix}"), volume)
+
+
+def test_ijk_to_ras_maps_indices_to_millimetres() -> None:
+    volume = _volume(left_handed=True)
+    matrix = volume.ijk_to_ras()
+    assert matrix.shape == (4, 4)
+    np.testing.assert_allclose(matrix @ [0, 0, 0, 1], [*ORIGIN, 1.0])
+    expected = np.asarray(ORIGIN) + volume.directions @ (np.array([2, 3, 4]) * np.asarray(SPACING))
+    np.testing.assert_allclose((matrix @ [2, 3, 4, 1])[:3], expected)
+
+
+def test_nrrd_header_is_lps(tmp_path: Path) -> None:
+    volume = Volume(np.zeros(SHAPE, np.int16), SPACING, ORIGIN, np.eye(3), "v")
+    write_volume(volume, tmp_path / "v.nrrd")
+    header = (tmp_path / "v.nrrd").read_bytes().split(b"\n\n", 1)[0].decode()
+    assert "space: left-posterior-superior" in header
+    assert "space origin: (-10.5,20.25,33.0)" in header
+    assert "sizes: 9 7 5" in header
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# DICOM: a minimal series written by hand (explicit VR little endian), since plain VTK has no DICOM writer
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def _element(group: int, element: int, vr: str, value: bytes) -> bytes:
+    if len(value) % 2:
+        value += b"\0" if vr in ("UI", "OB") else b" "
+    if vr in ("OB", "OW", "OF", "SQ", "UT", "UN"):
+        return struct.pack("<HH2sHI", group, element, vr.encode(), 0, len(value)) + value
+    return struct.pack("<HH2sH", group, element, vr.encode(), len(value)) + value
+
+
+def _ds(*numbers: float) -> bytes:
+    return "\\".join(f"{n:.6f}".rstrip("0").rstrip(".") for n in numbers).encode()
+
+
+def _write_dicom_slice(
+    path: Path,
+    pixels: np.ndarray,
+    position: np.ndarray,
+    orientation: np.ndarray,
+    pixel_spacing: tuple[float, float],
+    number: int,
+    intercept: float,
+) -> None:
+    """Write one CT slice; ``pixels`` is (rows, columns) int16 stored values; geometry in LPS as DICOM wants."""
+    sop_class, uid_root = b"1.2.840.10008.5.1.4.1.1.2", "1.2.826.0.1.3680043.9.7133.1"
+    instance = f"{uid_root}.{number + 100}".encode()
+    meta_body = (
+        _element(0x0002, 0x0001, "OB", b"\0\1")
+        + _element(0x0002, 0x0002, "UI", sop_class)
+        + _element(0x0002, 0x0003, "UI", instance)
+        + _element(0x0002, 0x0010, "UI", b"1.2.840.10008.1.2.1")
+    )
+    meta = _element(0x0002, 0x0000, "UL", struct.pack("<I", len(meta_body))) + meta_body
+    rows, columns = pixels.shape
+    data = b"".join(
+        [
+            _element(0x0008, 0x0016, "UI", sop_class),
+            _element(0x0008, 0x0018, "UI", instance),
+            _element(0x0008, 0x0060, "CS", b"CT"),
+            _element(0x0010, 0x0010, "PN", b"Test^Phantom"),
+            _element(0x0020, 0x000D, "UI", f"{uid_root}.1".encode()),
+            _element(0x0020, 0x000E, "UI", f"{uid_root}.2".encode()),
+            _element(0x0020, 0x0013, "IS", str(number).encode()),
+            _element(0x0020, 0x0032, "DS", _ds(*position)),
+            _element(0x0020, 0x0037, "DS", _ds(*orientation)),
+            _element(0x0028, 0x0002, "US", struct.pack("<H", 1)),
+            _element(0x0028, 0x0004, "CS", b"MONOCHROME2"),
+            _element(0x0028, 0x0010, "US", struct.pack("<H", rows)),
+            _element(0x0028, 0x0011, "US", struct.pack("<H", columns)),
+            _element(0x0028, 0x0030, "DS", _ds(*pixel_spacing)),
+            _element(0x0028, 0x0100, "US", struct.pack("<H", 16)),
+            _element(0x0028, 0x0101, "US", struct.pack("<H", 16)),
+            _element(0x0028, 0x0102, "US", struct.pack("<H", 15)),
+            _element(0x0028, 0x0103, "US", struct.pack("<H", 1)),
+            _element(0x0028, 0x1052, "DS", _ds(intercept)),
+            _element(0x0028, 0x1053, "DS", b"1"),
+            _element(0x7FE0, 0x0010, "OW", pixels.astype("<i2").tobytes()),
+        ]
+    )
+    path.write_bytes(b"\0" * 128 + b"DICM" + meta + data)
+
+
+def test_dicom_series_sorted_with_geometry(tmp_path: Path, capfd) -> None:
+    rng = np.random.default_rng(7)
+    hu = rng.integers(-1000, 2000, size=SHAPE).astype(np.int16)
+    row_lps = _rotation(20.0, 2)[:, 0]  # direction of increasing column index (i)
+    col_lps = _rotation(20.0, 2)[:, 1]  # direction of increasing row index (j)
+    normal = np.cross(row_lps, col_lps)
+    origin_lps = np.array([-120.0, 80.5, -40.0])
+    row_spacing, column_spacing, slice_spacing = 0.8, 0.6, 2.5  # DICOM Pixel Spacing = (row, column) spacing
+    series = tmp_path / "series"
+    series.mkdir()
+    order = [3, 0, 4, 1, 2]  # file names do not follow the slice order
+    for name_index, k in enumerate(order):
+        _write_dicom_slice(
+            series / f"IM{name_index:04d}",
+            hu[k] + 1024,
+            origin_lps + k * slice_spacing * normal,
+            np.concatenate([row_lps, col_lps]),
+            (row_spacing, column_spacing),
+            name_index + 1,
+            -1024.0,
+        )
+    (series / "notes.txt").write_text("not a DICOM file\n")
+
+    read = read_volume(series)
+    assert read.values.shape == SHAPE
+    np.testing.assert_array_equal(read.values, hu)
+    lps_to_ras = np.diag([-1.0, -1.0, 1.0])
+    np.testing.assert_allclose(read.spacing, (column_spacing, row_spacing, slice_spacing), atol=1e-5)
+    np.testing.assert_allclose(read.origin, lps_to_ras @ origin_lps, atol=1e-5)
+    np.testing.assert_allclose(read.directions, lps_to_ras @ np.column_stack([row_lps, col_lps, normal]), atol=1e-5)
+    assert read.name == "series"
+    assert capfd.readouterr().err == ""
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Clear, one-line errors
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def _read_error(path: Path, capfd) -> str:
+    with pytest.raises(VolumeReadError) as info:
+        read_volume(path)
+    message = str(info.value)
+    assert "\n" not in message
+    assert str(path) in message
+    assert info.value.__traceback__ is not None
+    assert capfd.readouterr().err == "", "VTK printed to stderr"
+    return message
+
+
+def test_missing_file(tmp_path: Path, capfd) -> None:
+    message = _read_error(tmp_path / "absent.nrrd", capfd)
+    assert "no such file" in message
+
+
+def test_unknown_suffix(tmp_path: Path, capfd) -> None:
+    path = tmp_path / "scan.xyz"
+    path.write_bytes(b"hello")
+    message = _read_error(path, capfd)
+    assert "unsupported file type '.xyz'" in message
+    assert ".nrrd" in message and "DICOM" in message
+
+
+def test_folder_without_dicom(tmp_path: Path, capfd) -> None:
+    folder = tmp_path / "notdicom"
+    folder.mkdir()
+    (folder / "a.txt").write_text("just text\n")
+    np.save(folder / "b.npy", np.zeros(3))
+    message = _read_error(folder, capfd)
+    assert "no DICOM files" in message
+
+
+def test_empty_folder(tmp_path: Path, capfd) -> None:
+    folder = tmp_path / "empty"
+    folder.mkdir()
+    assert "empty" in _read_error(folder, capfd)
+
+
+@pytest.mark.parametrize("suffix", [".nrrd", ".nhdr", ".mha", ".nii", ".nii.gz", ".vti", ".npy"])
+def test_truncated_files(tmp_path: Path, suffix: str, capfd) -> None:
+    volume = _volume(left_handed=False)
+    path = tmp_path / f"cut{suffix}"
+    write_volume(volume, path)
+    data_path = path.with_suffix(".raw") if suffix == ".nhdr" else path
+    data = data_path.read_bytes()
+    data_path.write_bytes(data[: len(data) // 2])
+    message = _read_error(path, capfd)
+    assert "Cannot read" in message
+
+
+def test_truncated_nrrd_messages(tmp_path: Path, capfd) -> None:
+    volume = _volume(left_handed=False)
+    gz = tmp_path / "cut.nrrd"
+    write_volume(volume, gz)
+    gz.write_bytes(gz.read_bytes()[:-200])
+    assert "gzip" in _read_error(gz, capfd).lower()
+    raw = tmp_path / "raw.nrrd"
+    header = b"NRRD0004\ntype: short\ndimension: 3\nsizes: 9 7 5\nencoding: raw\nendian: little\n\n"
+    raw.write_bytes(header + volume.values.tobytes()[:100])
+    message = _read_error(raw, capfd)
+    assert "truncated" in message and "630 bytes" in message
+
+
+def test_garbage_files(tmp_path: Path, capfd) -> None:
+    for suffix in (".nrrd", ".mha", ".nii", ".nii.gz", ".vti", ".npy", ".inv3"):
+        path = tmp_path / f"garbage{suffix}"
+        path.write_bytes(bytes(range(256)) * 4)
+        _read_error(path, capfd)
+    compressed = tmp_path / "garbage2.nii.gz"
+    compressed.write_bytes(gzip.compress(b"\0" * 400))
+    assert "NIfTI" in _read_error(compressed, capfd)
+
+
+def _vtk_image(dims: tuple[int, int, int], components: int) -> object:
+    from vtkmodules.util.numpy_support import numpy_to_vtk
+    from vtkmodules.vtkCommonDataModel import vtkImageData
+
+    image = vtkImageData()
+    image.SetDimensions(*dims)
+    n = dims[0] * dims[1] * dims[2]
+    array = numpy_to_vtk((np.arange(n * components) % 250).astype(np.uint8).reshape(n, components), deep=True)
+    image.GetPointData().SetScalars(array)
+    return image
+
+
+def _write_vti(image: object, path: Path) -> None:
+    from vtkmodules.vtkIOXML import vtkXMLImageDataWriter
+
+    writer = vtkXMLImageDataWriter()
+    writer.SetFileName(str(path))
+    writer.SetInputData(image)
+    writer.Write()
+
+
+def test_rgb_image_rejected(tmp_path: Path, capfd) -> None:
+    path = tmp_path / "rgb.vti"
+    _write_vti(_vtk_image((9, 7, 5), components=3), path)
+    message = _read_error(path, capfd)
+    assert "3 components per voxel" in message and "RGB" in message
+
+
+def test_two_d_images_rejected(tmp_path: Path, capfd) -> None:
+    path = tmp_path / "slice.vti"
+    _write_vti(_vtk_image((9, 7, 1), components=1), path)
+    assert "2-D image (9 x 7 x 1 voxels)" in _read_error(path, capfd)
+    flat = tmp_path / "slice.npy"
+    np.save(flat, np.zeros((7, 9), np.int16))
+    assert "shape (7, 9)" in _read_error(flat, capfd)
+    nrrd = tmp_path / "slice.nrrd"
+    nrrd.write_bytes(b"NRRD0004\ntype: short\ndimension: 2\nsizes: 9 7\nencoding: raw\n\n" + bytes(126))
+    assert "2-D image" in _read_error(nrrd, capfd)
+
+
+def test_vector_nrrd_rejected(tmp_path: Path, capfd) -> None:
+    path = tmp_path / "vectors.nrrd"
+    header = b"NRRD0004\ntype: float\ndimension: 4\nsizes: 3 9 7 5\nkinds: vector domain domain domain\n"
+    path.write_bytes(header + b"encoding: raw\n\n" + bytes(4 * 3 * 9 * 7 * 5))
+    assert "3 components per voxel" in _read_error(path, capfd)
+
+
+def test_pickled_npy_rejected(tmp_path: Path, capfd) -> None:
+    path = tmp_path / "objects.npy"
+    np.save(path, np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    assert "Cannot read" in _read_error(path, capfd)
+
+
+def test_write_rejects_unknown_suffix(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="unsupported suffix"):
+        write_volume(_volume(left_handed=False), tmp_path / "v.xyz")
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Real data (Debian packages invesalius-examples and mricron-data; skipped when absent)
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def _real(name: str, package: str) -> Path:
+    path = real_dataset_path(name)
+    if path is None:
+        pytest.skip(f"real dataset '{name}' not installed (Debian package {package})")
+    return path
+
+
+def test_invesalius_head_ct() -> None:
+    volume = read_volume(_real("head-ct", "invesalius-examples"))
+    assert volume.values.shape == (108, 256, 256)  # (z, y, x)
+    assert volume.values.dtype == np.int16
+    np.testing.assert_allclose(volume.spacing, (0.957, 0.957, 1.5), atol=1e-3)
+    assert -1100 <= int(volume.values.min()) <= -1000  # air
+    assert int(volume.values.max()) > 1000  # bone
+    assert volume.name == "Cranium"
+
+
+def test_colin27_brain_mri() -> None:
+    volume = read_volume(_real("brain-mri", "mricron-data"))
+    # NIfTI dims are 181 (x) x 217 (y) x 181 (z); the array is (z, y, x).
+    assert volume.values.shape == (181, 217, 181)
+    np.testing.assert_allclose(volume.spacing, (1.0, 1.0, 1.0), atol=1e-6)
+    np.testing.assert_allclose(volume.directions, np.eye(3), atol=1e-6)  # MNI template: RAS-aligned
+    assert float(volume.values.max()) > float(volume.values.min())
+
+
+def test_real_dataset_path_unknown_name() -> None:
+    with pytest.raises(KeyError):
+        real_dataset_path("no-such-dataset")
