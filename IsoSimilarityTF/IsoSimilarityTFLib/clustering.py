@@ -62,6 +62,37 @@ def _nearest(members: np.ndarray, n_bins: int) -> np.ndarray:
     return np.where(use_left, members[left], members[right])
 
 
+def _merge_duplicates(affinity: np.ndarray, labels: np.ndarray, exemplars: np.ndarray):
+    """Join classes that share isovalues with identical affinity rows.
+
+    Such isovalues cross exactly the same cells at every level, so nothing can tell them apart; AP may still split
+    them when the preference is as high as their similarity (e.g. a two-value volume, where the median affinity is
+    0). Each merged class keeps the exemplar of its largest part.
+    """
+    _, duplicate_group = np.unique(affinity, axis=0, return_inverse=True)
+    duplicate_group = duplicate_group.reshape(-1)
+    parent = np.arange(exemplars.size)
+
+    def root(k: int) -> int:
+        while parent[k] != k:
+            k = parent[k]
+        return k
+
+    for group in np.unique(duplicate_group):
+        classes = np.unique(labels[duplicate_group == group])
+        for k in classes[1:]:
+            parent[root(k)] = root(classes[0])
+    roots = np.array([root(k) for k in range(exemplars.size)])
+    if np.array_equal(roots, np.arange(exemplars.size)):
+        return labels, exemplars
+    sizes = np.bincount(labels, minlength=exemplars.size)
+    merged_ids, merged_labels = np.unique(roots[labels], return_inverse=True)
+    merged_exemplars = np.array(
+        [exemplars[max(np.flatnonzero(roots == r), key=lambda k: (sizes[k], -exemplars[k]))] for r in merged_ids]
+    )
+    return merged_labels.reshape(-1), merged_exemplars
+
+
 def cluster_isovalues(
     similarity: np.ndarray,
     *,
@@ -136,6 +167,7 @@ def cluster_isovalues(
                 f"affinity propagation found no exemplar in {n_iter} iterations; "
                 "raise max_iter or damping (e.g. max_iter=1000, damping=0.9)"
             )
+    member_labels, exemplars = _merge_duplicates(affinity, np.asarray(member_labels), exemplars)
     # Class ids in order of exemplar isovalue, so class 0 is the lowest intensity group.
     exemplar_bins = members[exemplars]
     order = np.argsort(exemplar_bins, kind="stable")

@@ -72,32 +72,34 @@ def piecewise_constant(edges: np.ndarray, bin_color: np.ndarray, bin_opacity: np
 
 
 def fill_volume_property(volume_property, points: TransferFunctionPoints) -> None:
-    """Replace the colour and scalar opacity functions of a ``vtkVolumeProperty`` in place (other settings kept)."""
-    color_function = volume_property.GetRGBTransferFunction()
-    opacity_function = volume_property.GetScalarOpacity()
-    color_function.RemoveAllPoints()
-    opacity_function.RemoveAllPoints()
+    """Replace the colour and scalar opacity functions of a ``vtkVolumeProperty`` in place (other settings kept).
+
+    The function objects are kept, so whoever observes them (a Slicer property node, a renderer) sees one change each.
+    """
+    from vtkmodules.vtkCommonDataModel import vtkPiecewiseFunction
+    from vtkmodules.vtkRenderingCore import vtkColorTransferFunction
+
+    color_function = vtkColorTransferFunction()
+    opacity_function = vtkPiecewiseFunction()
     for x, (r, g, b), a in zip(points.x.tolist(), points.color.tolist(), points.opacity.tolist()):
         color_function.AddRGBPoint(x, r, g, b)
         opacity_function.AddPoint(x, a)
+    volume_property.GetRGBTransferFunction().DeepCopy(color_function)
+    volume_property.GetScalarOpacity().DeepCopy(opacity_function)
 
 
-def new_volume_property(points: TransferFunctionPoints, unit_distance: float = 1.0):
-    """A shaded ``vtkVolumeProperty`` with linear interpolation showing ``points``.
+def configure_volume_property(volume_property, unit_distance: float = 1.0) -> None:
+    """Shading, lighting and interpolation of our transfer functions, and a constant gradient opacity.
 
     Args:
         unit_distance: scalar opacity unit distance in mm (the voxel spacing makes opacity per voxel step).
     """
     from vtkmodules.vtkCommonDataModel import vtkPiecewiseFunction
-    from vtkmodules.vtkRenderingCore import vtkColorTransferFunction, vtkVolumeProperty
 
-    volume_property = vtkVolumeProperty()
-    volume_property.SetColor(vtkColorTransferFunction())
-    volume_property.SetScalarOpacity(vtkPiecewiseFunction())
     gradient = vtkPiecewiseFunction()
     gradient.AddPoint(0.0, 1.0)
     gradient.AddPoint(255.0, 1.0)
-    volume_property.SetGradientOpacity(gradient)
+    volume_property.GetGradientOpacity().DeepCopy(gradient)
     volume_property.SetInterpolationTypeToLinear()
     volume_property.ShadeOn()
     volume_property.SetAmbient(AMBIENT)
@@ -105,6 +107,13 @@ def new_volume_property(points: TransferFunctionPoints, unit_distance: float = 1
     volume_property.SetSpecular(SPECULAR)
     volume_property.SetSpecularPower(SPECULAR_POWER)
     volume_property.SetScalarOpacityUnitDistance(unit_distance)
+
+
+def new_volume_property(points: TransferFunctionPoints, unit_distance: float = 1.0):
+    """A new shaded ``vtkVolumeProperty`` with linear interpolation showing ``points`` (see
+    :func:`configure_volume_property`)."""
+    volume_property = _empty_volume_property()
+    configure_volume_property(volume_property, unit_distance)
     fill_volume_property(volume_property, points)
     return volume_property
 
