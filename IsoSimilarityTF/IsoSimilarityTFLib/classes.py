@@ -1,6 +1,7 @@
 """Step 5 of the pipeline: turn isovalue clusters into ranked, coloured classes of voxels."""
 
 from dataclasses import dataclass, field
+from typing import Optional
 
 import numpy as np
 
@@ -20,6 +21,11 @@ PALETTE: tuple[tuple[float, float, float], ...] = tuple(
 MIN_OPACITY = 0.02
 MAX_OPACITY = 0.8
 OPACITY_EXPONENT = 2.0
+# A class most of whose voxels touch the background is noise scattered in it or the partial-volume rim around
+# objects: shown, it fogs the view, so it starts hidden (the tissue it borders is shown by its own class).
+FRINGE_CONTACT = 0.5
+# Voxels sampled (whole planes, evenly spaced) to measure background contact: enough for a share, and fast.
+_CONTACT_SAMPLE_VOXELS = 1 << 22
 
 
 @dataclass
@@ -51,6 +57,7 @@ class IsovalueClass:
     opacity: float = 1.0
     visible: bool = True
     background: bool = False
+    background_contact: float = 0.0
 
     def to_dict(self) -> dict:
         return {
@@ -65,6 +72,7 @@ class IsovalueClass:
             "opacity": self.opacity,
             "visible": self.visible,
             "background": self.background,
+            "background_contact": self.background_contact,
         }
 
     @classmethod
@@ -81,6 +89,7 @@ class IsovalueClass:
             opacity=float(data["opacity"]),
             visible=bool(data["visible"]),
             background=bool(data["background"]),
+            background_contact=float(data.get("background_contact", 0.0)),
         )
 
 
@@ -95,13 +104,60 @@ def runs(sorted_bins: np.ndarray) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(firsts, lasts)]
 
 
-def default_opacities(classes: list[IsovalueClass]) -> list[float]:
-    """Default opacity per class: 0 for the background, else rising with intensity order among the others."""
-    ordered = sorted((c.exemplar_bin, c.id) for c in classes if not c.background)
-    position = {class_id: i for i, (_, class_id) in enumerate(ordered)}
-    span = max(len(ordered) - 1, 1)
+def background_contact(bins: np.ndarray, labels: np.ndarray, background_id: int) -> np.ndarray:
+    """Share of each class's voxels that have a background voxel among their 6 neighbours.
+
+    Args:
+        bins: quantized volume, shape ``(n0, n1, n2)``.
+        labels: ``(n_bins,)`` class id per bin.
+        background_id: the background class.
+
+    Returns:
+        ``(n_classes,)`` shares in [0, 1], measured on evenly spaced planes along axis 0 for large volumes; 0 for
+        a class with no voxel in the planes measured.
+    """
+    n_classes = int(labels.max()) + 1
+    class_of_bin = labels.astype(np.uint8 if n_classes <= 256 else np.uint16)
+    step = max(1, bins.size // _CONTACT_SAMPLE_VOXELS)
+    touching = np.zeros(n_classes, dtype=np.int64)
+    totals = np.zeros(n_classes, dtype=np.int64)
+    for plane in range(0, bins.shape[0], step):
+        low, high = max(plane - 1, 0), min(plane + 2, bins.shape[0])
+        is_background = class_of_bin[bins[low:high]] == background_id
+        in_plane = is_background[plane - low]
+        near = is_background.any(axis=0)  # the voxel itself and its neighbours in the planes either side
+        near[1:] |= in_plane[:-1]
+        near[:-1] |= in_plane[1:]
+        near[:, 1:] |= in_plane[:, :-1]
+        near[:, :-1] |= in_plane[:, 1:]
+        classes = class_of_bin[bins[plane]]
+        totals += np.bincount(classes.reshape(-1), minlength=n_classes)
+        touching += np.bincount(classes[near], minlength=n_classes)
+    return touching / np.maximum(totals, 1)
+
+
+def default_visibility(classes: list[IsovalueClass], max_classes: int) -> list[bool]:
+    """Classes shown by default: the ``max_classes`` largest that are neither background nor on its fringe."""
+    candidates = sorted((c.rank, c.id) for c in classes if not c.background and c.background_contact <= FRINGE_CONTACT)
+    shown = {class_id for _, class_id in candidates[:max_classes]}
+    return [c.id in shown for c in classes]
+
+
+def default_opacities(classes: list[IsovalueClass], max_classes: int) -> list[float]:
+    """Default opacity per class: 0 for the background, else rising with intensity across the default shown classes.
+
+    A class's place is its exemplar's position among the shown classes' exemplars (0 for the lowest, 1 for the
+    highest, interpolated between and clamped outside), so the densest shown class is the most opaque.
+    """
+    shown = sorted(c.exemplar_bin for c, visible in zip(classes, default_visibility(classes, max_classes)) if visible)
+    if len(shown) < 2:
+        shown = sorted(c.exemplar_bin for c in classes if not c.background) or [0]
+    anchors = np.linspace(0.0, 1.0, len(shown)) if len(shown) > 1 else np.ones(1)
     return [
-        0.0 if c.background else MIN_OPACITY + (MAX_OPACITY - MIN_OPACITY) * (position[c.id] / span) ** OPACITY_EXPONENT
+        0.0
+        if c.background
+        else MIN_OPACITY
+        + (MAX_OPACITY - MIN_OPACITY) * float(np.interp(c.exemplar_bin, shown, anchors)) ** OPACITY_EXPONENT
         for c in classes
     ]
 
@@ -121,6 +177,7 @@ def build_classes(
     *,
     background: str = "largest",
     max_classes: int = 15,
+    bins: Optional[np.ndarray] = None,
 ) -> list[IsovalueClass]:
     """Rank classes by voxel count, pick the background, and give every class its default look.
 
@@ -132,6 +189,10 @@ def build_classes(
         background: ``"largest"`` (the class with most voxels, thesis), ``"lowest"`` (the class of the lowest
             occupied bin) or ``"none"``.
         max_classes: how many non-background classes are shown, largest first; the rest are kept but hidden.
+        bins: the quantized volume; when given, classes on the background's fringe (see ``FRINGE_CONTACT``) start
+            hidden and do not count towards ``max_classes``.
+        bins: the quantized volume; when given, classes on the background's fringe (see ``FRINGE_CONTACT``) start
+            hidden and do not count towards ``max_classes``.
 
     Returns:
         Classes in id order.
@@ -154,6 +215,9 @@ def build_classes(
     else:
         background_id = None
 
+    contact = np.zeros(n_classes)
+    if bins is not None and background_id is not None:
+        contact = background_contact(bins, labels, background_id)
     classes = []
     for class_id in range(n_classes):
         members = np.flatnonzero(labels == class_id)
@@ -167,9 +231,12 @@ def build_classes(
                 value_ranges=[[float(edges[a]), float(edges[b + 1])] for a, b in runs(members)],
                 exemplar_bin=int(exemplars[class_id]),
                 background=class_id == background_id,
+                background_contact=float(contact[class_id]) if class_id != background_id else 1.0,
             )
         )
-    shown = [class_id for class_id in order if class_id != background_id][:max_classes]
-    for c, color, opacity in zip(classes, default_colors(classes), default_opacities(classes)):
-        c.color, c.opacity, c.visible = color, opacity, c.id in shown
+    looks = zip(
+        default_colors(classes), default_opacities(classes, max_classes), default_visibility(classes, max_classes)
+    )
+    for c, (color, opacity, visible) in zip(classes, looks):
+        c.color, c.opacity, c.visible = color, opacity, visible
     return classes

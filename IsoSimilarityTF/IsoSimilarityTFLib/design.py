@@ -39,7 +39,9 @@ DEFAULT_OPTIONS = {
 }
 
 UNCONVERGED_RULES = ("raise-damping", "error", "keep")
-# Frey & Dueck's remedy for oscillating messages: more damping. Tried in turn when the requested damping fails.
+# Frey & Dueck's remedy for oscillating messages: more damping, tried in turn when the requested damping fails.
+# Messages then move (1 - damping) of the way per iteration, so the iteration limits grow by the same factor;
+# otherwise a slow run of unchanged exemplars passes for convergence.
 FALLBACK_DAMPINGS = (0.7, 0.9)
 
 STAGES = ("quantize", "similarity", "clustering", "classes")
@@ -133,7 +135,9 @@ class TransferFunctionDesign:
 
     def reset_look(self) -> None:
         """Back to the default colours and opacities (visibility untouched)."""
-        for c, color, opacity in zip(self.classes, default_colors(self.classes), default_opacities(self.classes)):
+        max_classes = self.options.get("max_classes", DEFAULT_OPTIONS["max_classes"])
+        looks = zip(default_colors(self.classes), default_opacities(self.classes, max_classes))
+        for c, (color, opacity) in zip(self.classes, looks):
             c.color, c.opacity = color, opacity
 
     # Transfer function ---------------------------------------------------------------------------------------------
@@ -243,7 +247,8 @@ def design_transfer_function(
         **options: ``n_bins``, ``value_range``, ``crossing``, ``normalization``, ``levels``, ``preference``,
             ``damping``, ``max_iter``, ``convergence_iter``, ``max_classes``, ``background``, ``unconverged``
             (see DEFAULT_OPTIONS). ``unconverged`` says what happens when affinity propagation does not converge:
-            ``"raise-damping"`` retries with damping 0.7 then 0.9 (the damping used is reported), ``"error"`` raises,
+            ``"raise-damping"`` retries with damping 0.7 then 0.9 and iteration limits scaled by the slower message
+            updates (what was used is reported in ``clustering``), ``"error"`` raises,
             ``"keep"`` keeps the last iteration's grouping (reported as not converged).
 
     Raises:
@@ -289,13 +294,17 @@ def design_transfer_function(
     if opts["unconverged"] == "raise-damping":
         dampings += [d for d in FALLBACK_DAMPINGS if d > opts["damping"]]
     for damping in dampings:
+        slowdown = (1.0 - opts["damping"]) / (1.0 - damping)
+        iterations = {
+            "max_iter": int(round(opts["max_iter"] * slowdown)),
+            "convergence_iter": int(round(opts["convergence_iter"] * slowdown)),
+        }
         clusters = cluster_isovalues(
             similarity.matrix,
             preference=opts["preference"],
             damping=damping,
-            max_iter=opts["max_iter"],
-            convergence_iter=opts["convergence_iter"],
             empty_isovalues=similarity.empty_isovalues,
+            **iterations,
         )
         if clusters.converged:
             break
@@ -308,14 +317,14 @@ def design_transfer_function(
 
     start = time.perf_counter()
     report("classes", 0.0, "ranking classes")
-    bin_voxels = np.bincount(quantized.bins.reshape(-1), minlength=quantized.n_bins)
     classes = build_classes(
         clusters.labels,
         clusters.exemplars,
-        bin_voxels,
+        quantized.voxel_counts(),
         quantized.edges,
         background=opts["background"],
         max_classes=opts["max_classes"],
+        bins=quantized.bins,
     )
     design = TransferFunctionDesign(
         value_range=quantized.value_range,
@@ -329,6 +338,7 @@ def design_transfer_function(
             "n_classes": clusters.n_classes,
             "preference": clusters.preference,
             "damping": damping,
+            **iterations,
             "empty_isovalues": [int(b) for b in similarity.empty_isovalues],
         },
         spacing=spacing,

@@ -10,6 +10,7 @@ MAX_BINS = 4096
 _SLAB_VOXELS = 1 << 23
 # Integer volumes whose value span is at most this many values are quantized through a lookup table.
 _MAX_LOOKUP_SPAN = 1 << 22
+_HISTOGRAM_CHUNK = 1 << 20
 
 
 @dataclass(frozen=True)
@@ -47,6 +48,15 @@ class Quantization:
         """Bin centres in volume units, shape ``(n_bins,)``: the isovalue each bin stands for."""
         edges = self.edges
         return 0.5 * (edges[:-1] + edges[1:])
+
+    def voxel_counts(self) -> np.ndarray:
+        """Number of voxels per bin, shape ``(n_bins,)`` int64 (the volume's histogram)."""
+        flat = self.bins.reshape(-1)
+        counts = np.zeros(self.n_bins, dtype=np.int64)
+        # Chunks that stay in cache: bincount converts its input to intp first.
+        for start in range(0, flat.size, _HISTOGRAM_CHUNK):
+            counts += np.bincount(flat[start : start + _HISTOGRAM_CHUNK], minlength=self.n_bins)
+        return counts
 
     def value_to_bin(self, values: np.ndarray) -> np.ndarray:
         """Bin index of each value (values outside ``value_range`` go to the first or last bin)."""

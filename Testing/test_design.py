@@ -1,0 +1,189 @@
+"""The whole pipeline and class editing, without recomputation."""
+
+import json
+
+import numpy as np
+import pytest
+
+from IsoSimilarityTFLib import ClusteringError, TransferFunctionDesign, design_transfer_function, quantize
+from IsoSimilarityTFLib.classes import PALETTE, build_classes, runs
+from IsoSimilarityTFLib.phantom import head_phantom
+
+
+@pytest.fixture(scope="module")
+def phantom():
+    return head_phantom(48, seed=1)
+
+
+@pytest.fixture()
+def design(phantom):
+    return design_transfer_function(phantom.values, phantom.spacing)
+
+
+def test_pipeline_on_the_phantom(design, phantom):
+    assert design.n_bins == 256 and design.value_range == (float(phantom.values.min()), float(phantom.values.max()))
+    assert design.clustering["converged"] and design.clustering["n_classes"] == len(design.classes) > 3
+    assert set(design.timings_s) == {"quantize", "similarity", "clustering", "classes"}
+    assert design.labels.shape == (256,) and design.similarity.shape == (256, 256)
+    # Ranks are a permutation ordered by voxel count; fractions sum to one.
+    ranks = sorted(design.classes, key=lambda c: c.rank)
+    assert [c.rank for c in ranks] == list(range(1, len(ranks) + 1))
+    assert all(a.voxels >= b.voxels for a, b in zip(ranks, ranks[1:]))
+    assert sum(c.voxels for c in design.classes) == phantom.values.size
+    assert sum(c.fraction for c in design.classes) == pytest.approx(1.0)
+    # The background is the largest class, hidden, and it is the air around the head.
+    background = design.background_class
+    assert background.rank == 1 and not background.visible and background.opacity == 0.0
+    assert any(low <= -1000 < high for low, high in background.value_ranges)
+    # Noise specks in the air (below and just above the air class) touch the background: hidden by default.
+    below_air = [c for c in design.classes if c.exemplar_bin < background.exemplar_bin]
+    assert below_air and all(c.background_contact > 0.5 and not c.visible for c in below_air)
+    # Bone and soft tissue are shown; bone, the densest, is the most opaque shown class.
+    shown = [c for c in design.classes if c.visible]
+    assert any(low <= 60 < high for c in shown for low, high in c.value_ranges)
+    assert any(low <= 1000 < high for c in shown for low, high in c.value_ranges)
+    densest = max(shown, key=lambda c: c.exemplar_bin)
+    assert densest.opacity == max(c.opacity for c in shown) == pytest.approx(0.8)
+    # Every bin belongs to exactly one class.
+    all_bins = sorted(b for c in design.classes for b in c.isovalue_bins)
+    assert all_bins == list(range(256))
+
+
+def test_max_classes_limits_what_is_shown(phantom):
+    design = design_transfer_function(phantom.values, max_classes=2)
+    shown = [c for c in design.classes if c.visible]
+    candidates = sorted(c.rank for c in design.classes if not c.background and c.background_contact <= 0.5)
+    assert len(shown) == 2 and sorted(c.rank for c in shown) == candidates[:2]
+
+
+def test_background_rules(phantom):
+    lowest = design_transfer_function(phantom.values, background="lowest").background_class
+    assert lowest.isovalue_bins[0] == 0
+    none = design_transfer_function(phantom.values, background="none")
+    assert none.background_class is None and sum(c.visible for c in none.classes) == min(15, len(none.classes))
+    assert all(c.background_contact == 0.0 for c in none.classes)
+
+
+def test_transfer_function_shows_class_looks_at_bin_centres(design):
+    tf = design.transfer_function()
+    assert np.all(np.diff(tf.x) > 0)
+    centres = 0.5 * (design.edges[:-1] + design.edges[1:])
+    color, opacity = tf(centres)
+    for c in design.classes:
+        np.testing.assert_allclose(color[c.isovalue_bins], np.tile(c.color, (len(c.isovalue_bins), 1)))
+        np.testing.assert_allclose(opacity[c.isovalue_bins], c.opacity if c.visible else 0.0)
+
+
+def test_editing_changes_only_that_class(design):
+    before_color, before_opacity = design.transfer_function()(0.5 * (design.edges[:-1] + design.edges[1:]))
+    similarity = design.similarity
+    target = next(c for c in design.classes if c.visible)
+    design.set_class(target.id, color=(0.1, 0.2, 0.3), opacity=0.33)
+    after_color, after_opacity = design.transfer_function()(0.5 * (design.edges[:-1] + design.edges[1:]))
+    changed = np.flatnonzero(np.any(after_color != before_color, axis=1) | (after_opacity != before_opacity))
+    assert list(changed) == target.isovalue_bins
+    np.testing.assert_allclose(after_opacity[target.isovalue_bins], 0.33)
+    assert design.similarity is similarity  # nothing recomputed
+
+    design.set_class(target.id, visible=False)
+    assert np.all(design.transfer_function()(design.edges[target.isovalue_bins[0]] + 0.1)[1] == 0)
+
+
+def test_solo_show_all_and_reset(design):
+    target = next(c for c in design.classes if c.visible and c.rank > 2)
+    design.solo(target.id)
+    _, opacity = design.bin_looks()
+    assert set(np.flatnonzero(opacity)) == set(target.isovalue_bins)
+    design.solo(None)
+    design.set_class(target.id, color=(1, 1, 1), visible=False)
+    design.show_all()
+    assert all(c.visible != c.background for c in design.classes) and design.solo_class is None
+    design.reset_look()
+    assert target.color != [1.0, 1.0, 1.0]
+
+
+def test_bad_edits_are_rejected(design):
+    with pytest.raises(KeyError):
+        design.set_class(999, opacity=0.5)
+    with pytest.raises(ValueError, match="color"):
+        design.set_class(0, color=(2, 0, 0))
+    with pytest.raises(ValueError, match="opacity"):
+        design.set_class(0, opacity=-0.1)
+
+
+def test_json_round_trip_keeps_classes_and_tf(design):
+    design.set_class(design.classes[-1].id, color=(0.5, 0.25, 1.0))
+    design.solo(design.classes[-1].id)
+    data = json.loads(design.to_json())
+    for key in ("value_range", "n_bins", "options", "timings_s", "clustering", "labels", "classes"):
+        assert key in data
+    for key in ("n_iter", "converged", "n_classes"):
+        assert key in data["clustering"]
+    assert set(data["classes"][0]) >= {
+        "id", "rank", "voxels", "fraction", "isovalue_bins", "value_ranges", "exemplar_bin", "color", "opacity",
+        "visible", "background",
+    }  # fmt: skip
+    back = TransferFunctionDesign.from_json(design.to_json())
+    np.testing.assert_array_equal(back.transfer_function().x, design.transfer_function().x)
+    np.testing.assert_array_equal(back.transfer_function().opacity, design.transfer_function().opacity)
+    assert back.solo_class == design.solo_class and back.spacing == design.spacing
+    with pytest.raises(ValueError, match="not a valid"):
+        TransferFunctionDesign.from_json('{"n_bins": 3}')
+    with pytest.raises(ValueError, match="not a valid"):
+        TransferFunctionDesign.from_json("[")
+
+
+def test_quantized_input_and_progress(phantom):
+    stages = []
+    q = quantize(phantom.values, 64)
+    design = design_transfer_function(q, progress=lambda stage, fraction, message: stages.append(stage))
+    assert design.n_bins == 64 and design.options["n_bins"] == 64
+    assert stages[0] == "quantize" and stages[-1] == "classes" and "similarity" in stages and "clustering" in stages
+
+
+def test_cancel_from_progress(phantom):
+    class Cancelled(Exception):
+        pass
+
+    def cancel(stage, fraction, message):
+        if stage == "similarity" and fraction > 0:
+            raise Cancelled
+
+    with pytest.raises(Cancelled):
+        design_transfer_function(phantom.values, progress=cancel)
+
+
+def test_unconverged_rules():
+    grid = np.indices((20, 20, 20)).astype(float)
+    r = np.sqrt(((grid - 10) ** 2).sum(axis=0))
+    values = np.select([r < 3, r < 6, r < 8], [200, 140, 80], 20) + np.random.default_rng(0).normal(0, 4, r.shape)
+    with pytest.raises(ClusteringError, match="did not converge"):
+        design_transfer_function(values, unconverged="error", max_iter=50)
+    kept = design_transfer_function(values, unconverged="keep", max_iter=50)
+    assert not kept.clustering["converged"]
+    raised = design_transfer_function(values)
+    assert raised.clustering["converged"] and raised.clustering["damping"] > 0.5
+    assert raised.clustering["max_iter"] > 200 and raised.clustering["convergence_iter"] > 15
+
+
+def test_bad_options():
+    values = np.arange(27).reshape(3, 3, 3)
+    with pytest.raises(TypeError, match="unknown option"):
+        design_transfer_function(values, bins=12)
+    with pytest.raises(ValueError, match="unconverged"):
+        design_transfer_function(values, unconverged="ignore")
+    with pytest.raises(ValueError, match="spacing"):
+        design_transfer_function(values, spacing=(1, 0, 1))
+    with pytest.raises(ValueError, match="background"):
+        design_transfer_function(values, background="smallest")
+
+
+def test_build_classes_defaults():
+    labels = np.array([0, 0, 1, 1, 1, 2, 3, 3])
+    classes = build_classes(labels, np.array([0, 3, 5, 6]), np.array([50, 40, 1, 1, 1, 9, 0, 3]), np.arange(9.0))
+    assert [c.rank for c in classes] == [1, 3, 2, 4]
+    assert classes[0].background and not classes[0].visible
+    assert classes[1].color == list(PALETTE[1]) and classes[2].color == list(PALETTE[0])
+    # Opacity rises with intensity among the shown classes.
+    assert classes[1].opacity < classes[2].opacity < classes[3].opacity
+    assert runs(np.array([1, 2, 3, 7, 9, 10])) == [(1, 3), (7, 7), (9, 10)]

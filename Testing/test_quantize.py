@@ -1,0 +1,87 @@
+"""Quantization: exact bin mapping back to volume units, and clear errors on bad volumes."""
+
+import numpy as np
+import pytest
+
+from IsoSimilarityTFLib import quantize
+
+
+def test_uint8_with_256_bins_is_the_identity():
+    values = np.arange(256, dtype=np.uint8).reshape(4, 8, 8)
+    q = quantize(values)
+    np.testing.assert_array_equal(q.bins, values)
+    assert q.bins.dtype == np.uint8 and q.n_bins == 256 and q.value_range == (0.0, 255.0)
+
+
+def test_bins_follow_the_edges_in_volume_units():
+    rng = np.random.default_rng(0)
+    values = rng.normal(40, 300, (6, 7, 8))
+    q = quantize(values, 100)
+    edges = q.edges
+    assert edges.shape == (101,) and np.all(np.diff(edges) > 0)
+    assert edges[0] == values.min() and edges[-1] == values.max()
+    inside = values < values.max()
+    # Each value lies in [edges[b], edges[b + 1]) of its bin; the maximum goes to the last bin.
+    assert np.all(edges[q.bins[inside]] <= values[inside])
+    assert np.all(values[inside] < edges[q.bins[inside] + 1])
+    assert q.bins[values == values.max()].tolist() == [99]
+    np.testing.assert_allclose(q.isovalues, 0.5 * (edges[:-1] + edges[1:]))
+    np.testing.assert_array_equal(q.value_to_bin(values), q.bins)
+
+
+def test_integer_lookup_path_equals_float_path():
+    rng = np.random.default_rng(1)
+    values = rng.integers(-1024, 3072, (9, 10, 11)).astype(np.int16)
+    for n_bins in (7, 256, 1000, 4096):
+        integer = quantize(values, n_bins).bins
+        floating = quantize(values.astype(np.float64), n_bins).bins
+        np.testing.assert_array_equal(integer, floating)
+        assert integer.dtype == (np.uint8 if n_bins <= 256 else np.uint16)
+
+
+def test_given_range_clamps_outside_values():
+    values = np.linspace(-10, 110, 2 * 3 * 20).reshape(2, 3, 20)
+    q = quantize(values, 10, value_range=(0, 100))
+    assert q.value_range == (0.0, 100.0)
+    assert q.bins[values < 0].max() == 0 and q.bins[values >= 100].min() == 9
+    # A range may be given for a constant volume (e.g. a blank region of a larger series).
+    assert quantize(np.zeros((2, 2, 2)), 4, value_range=(-1, 1)).bins.max() == 2
+
+
+def test_non_contiguous_and_big_endian_volumes():
+    values = np.arange(5 * 6 * 7, dtype=">i4").reshape(5, 6, 7)
+    expected = quantize(values.astype(np.int32), 16).bins
+    np.testing.assert_array_equal(quantize(values, 16).bins, expected)
+    np.testing.assert_array_equal(quantize(values.transpose(2, 0, 1), 16).bins, expected.transpose(2, 0, 1))
+
+
+@pytest.mark.parametrize(
+    "values,message",
+    [
+        (np.zeros((8, 8)), "3-D"),
+        (np.zeros((2, 3, 4, 5)), "3-D"),
+        (np.zeros((4, 4, 4, 3)), "components"),
+        (np.zeros((4, 4, 1)), "at least 2 voxels"),
+        (np.ones((4, 4, 4)), "constant"),
+        (np.array([[[0.0, np.nan], [1, 2]], [[3, 4], [5, 6]]]), "NaN or infinite"),
+        (np.array([[[0.0, np.inf], [1, 2]], [[3, 4], [5, 6]]]), "NaN or infinite"),
+        (np.zeros((2, 2, 2), dtype=bool), "dtype"),
+        (np.zeros((2, 2, 2), dtype=complex), "dtype"),
+        (np.array([[["a", "b"], ["c", "d"]]] * 2), "dtype"),
+    ],
+)
+def test_bad_volumes_are_rejected_clearly(values, message):
+    with pytest.raises(ValueError, match=message):
+        quantize(values)
+
+
+@pytest.mark.parametrize("n_bins", [1, 0, 4097, 2.5, True, "256"])
+def test_bad_bin_counts_are_rejected(n_bins):
+    with pytest.raises(ValueError, match="n_bins"):
+        quantize(np.arange(8).reshape(2, 2, 2), n_bins)
+
+
+@pytest.mark.parametrize("value_range", [(5, 5), (5, 1), (0, np.inf), (np.nan, 1)])
+def test_bad_ranges_are_rejected(value_range):
+    with pytest.raises(ValueError, match="value_range"):
+        quantize(np.arange(8).reshape(2, 2, 2), 4, value_range=value_range)

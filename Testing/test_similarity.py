@@ -1,0 +1,222 @@
+"""The fast similarity path equals the slow, obvious reference; known answers on the thesis' test images."""
+
+import itertools
+
+import numpy as np
+import pytest
+
+from IsoSimilarityTFLib import isovalue_similarity, octree_levels, similarity_matrix, unit_cell_intervals
+from IsoSimilarityTFLib.cells import hyper_cell_intervals
+from IsoSimilarityTFLib.reference import reference_level_sizes, reference_similarity_matrix
+from IsoSimilarityTFLib.similarity import joint_interval_histogram, overlap_counts
+
+RULES = list(itertools.product(("inclusive", "strict"), ("thesis", "ma-entezari")))
+
+
+def random_volume(rng, shape, n_bins, kind):
+    if kind == "uniform":
+        return rng.integers(0, n_bins, shape)
+    if kind == "sorted":  # smooth along one axis: nested isosurfaces
+        return np.sort(rng.integers(0, n_bins, shape), axis=int(rng.integers(0, 3)))
+    if kind == "blobs":  # a few flat regions with noisy borders
+        grid = np.indices(shape).astype(float)
+        centre = [rng.uniform(0, s) for s in shape]
+        r = np.sqrt(sum((g - c) ** 2 for g, c in zip(grid, centre)))
+        levels = rng.integers(0, n_bins, 3)
+        volume = np.select([r < 2, r < 4], levels[:2], levels[2])
+        return np.clip(volume + rng.integers(-1, 2, shape), 0, n_bins - 1)
+    raise ValueError(kind)
+
+
+SHAPES = [(2, 2, 2), (2, 3, 5), (2, 9, 4), (3, 3, 3), (5, 2, 7), (6, 6, 6), (7, 11, 3), (9, 4, 10), (12, 5, 5)]
+
+
+@pytest.mark.parametrize("crossing,normalization", RULES)
+@pytest.mark.parametrize("kind", ["uniform", "sorted", "blobs"])
+def test_fast_path_equals_reference(crossing, normalization, kind):
+    rng = np.random.default_rng(abs(hash((crossing, normalization, kind))) % 2**32)
+    for shape in SHAPES:
+        n_bins = int(rng.choice([2, 5, 16, 37]))
+        bins = random_volume(rng, shape, n_bins, kind)
+        fast = similarity_matrix(bins, n_bins, crossing=crossing, normalization=normalization)
+        slow = reference_similarity_matrix(bins, n_bins, crossing, normalization)
+        np.testing.assert_allclose(fast, slow, rtol=0, atol=1e-12, err_msg=f"{shape} {n_bins}")
+        assert fast.dtype == np.float64 and fast.shape == (n_bins, n_bins)
+        np.testing.assert_array_equal(fast, fast.T)
+
+
+@pytest.mark.parametrize("crossing,normalization", RULES)
+def test_fast_path_equals_reference_with_fewer_levels(crossing, normalization):
+    rng = np.random.default_rng(7)
+    for shape in [(9, 6, 13), (4, 17, 5), (10, 10, 10)]:
+        bins = random_volume(rng, shape, 24, "sorted")
+        n_levels = len(octree_levels(tuple(s - 1 for s in shape)))
+        for levels in range(1, n_levels + 1):
+            fast = similarity_matrix(bins, 24, crossing=crossing, normalization=normalization, levels=levels)
+            slow = reference_similarity_matrix(bins, 24, crossing, normalization, levels)
+            np.testing.assert_allclose(fast, slow, rtol=0, atol=1e-12)
+
+
+def test_many_random_volumes_all_rules():
+    """Property check over many small random volumes, odd shapes and bin counts."""
+    rng = np.random.default_rng(2024)
+    for _ in range(40):
+        shape = tuple(int(s) for s in rng.integers(2, 10, 3))
+        n_bins = int(rng.integers(2, 40))
+        bins = random_volume(rng, shape, n_bins, str(rng.choice(["uniform", "sorted", "blobs"])))
+        crossing, normalization = RULES[int(rng.integers(0, 4))]
+        fast = similarity_matrix(bins, n_bins, crossing=crossing, normalization=normalization)
+        np.testing.assert_allclose(
+            fast, reference_similarity_matrix(bins, n_bins, crossing, normalization), rtol=0, atol=1e-12
+        )
+
+
+def test_octree_levels_follow_the_definition():
+    assert octree_levels((127, 127, 114)) == [
+        (127, 127, 114), (64, 64, 57), (32, 32, 29), (16, 16, 15), (8, 8, 8), (4, 4, 4), (2, 2, 2), (1, 1, 1)
+    ]  # fmt: skip
+    assert len(octree_levels((255, 255, 255))) == 9
+    assert octree_levels((1, 1, 1)) == [(1, 1, 1)]
+    assert octree_levels((1, 5, 2)) == [(1, 5, 2), (1, 3, 1), (1, 2, 1), (1, 1, 1)]
+    for shape in [(3, 7, 1), (100, 2, 33), (511, 511, 511)]:
+        assert octree_levels(shape) == reference_level_sizes(shape)
+
+
+def test_hyper_cell_intervals_match_direct_blocks():
+    rng = np.random.default_rng(3)
+    bins = rng.integers(0, 200, (14, 9, 23)).astype(np.uint8)
+    mins, maxs = unit_cell_intervals(bins)
+    assert mins.shape == (13, 8, 22)
+    for level, size, level_mins, level_maxs in hyper_cell_intervals(mins, maxs):
+        for index in itertools.product(*(range(n) for n in level_mins.shape)):
+            block = bins[tuple(slice(i * s, min((i + 1) * s, n - 1) + 1) for i, s, n in zip(index, size, bins.shape))]
+            assert level_mins[index] == block.min() and level_maxs[index] == block.max(), (level, index)
+
+
+def test_overlap_counts_from_histogram_match_brute_force():
+    rng = np.random.default_rng(5)
+    mins = rng.integers(0, 12, 500)
+    maxs = np.minimum(mins + rng.integers(0, 6, 500), 11)
+    histogram = joint_interval_histogram(mins, maxs, 12)
+    assert histogram.sum() == 500
+    for crossing in ("inclusive", "strict"):
+        counts = overlap_counts(histogram, crossing)
+        mu = np.arange(12)
+        if crossing == "inclusive":
+            crossed = (mins[:, None] <= mu) & (mu <= maxs[:, None])
+        else:
+            crossed = (mins[:, None] < mu) & (mu < maxs[:, None])
+        np.testing.assert_array_equal(counts, crossed.T.astype(int) @ crossed.astype(int))
+
+
+def band_volume(band_values, shape=(16, 16, 16), seed=0):
+    """Thesis test image: flat bands of a few values along one axis (a 'two-value' or 'four-value' image)."""
+    volume = np.empty(shape, dtype=np.int64)
+    edges = np.linspace(0, shape[0], len(band_values) + 1).astype(int)
+    for value, (a, b) in zip(band_values, zip(edges[:-1], edges[1:])):
+        volume[a:b] = value
+    return volume
+
+
+@pytest.mark.parametrize("crossing", ["inclusive", "strict"])
+@pytest.mark.parametrize("values", [(0, 31), (0, 10, 20, 31)])
+def test_band_images_give_identical_rows_within_each_band(crossing, values):
+    n_bins = 32
+    bins = band_volume(values)
+    result = isovalue_similarity(bins, n_bins, crossing=crossing)
+    s = result.matrix
+    # Isovalues strictly between two neighbouring band values cross exactly the same cells at every level.
+    for low, high in zip(values[:-1], values[1:]):
+        band = list(range(low + 1, high))
+        for i in band:
+            np.testing.assert_array_equal(s[i], s[band[0]])
+    # Isovalues in different bands cross different cells at the finest level: they are not identical.
+    if len(values) > 2:
+        assert not np.array_equal(s[values[0] + 1], s[values[1] + 1])
+
+
+@pytest.mark.parametrize("values", [(0, 31), (0, 10, 20, 31)])
+def test_band_images_cluster_into_one_class_per_band(values):
+    from IsoSimilarityTFLib import design_transfer_function
+
+    design = design_transfer_function(band_volume(values), n_bins=32, value_range=(0, 32))
+    labels = design.labels
+    assert design.clustering["converged"]
+    for low, high in zip(values[:-1], values[1:]):
+        assert len(set(labels[low + 1 : high])) == 1
+    bands = [labels[low + 1] for low, high in zip(values[:-1], values[1:])]
+    assert len(set(bands)) == len(bands)
+
+
+def test_similarity_properties_on_a_structured_volume():
+    grid = np.indices((20, 17, 15)).astype(float)
+    r = np.sqrt(((grid - 8) ** 2).sum(axis=0))
+    bins = np.clip(r * 2, 0, 63).astype(np.int64)
+    for crossing, normalization in RULES:
+        s = similarity_matrix(bins, 64, crossing=crossing, normalization=normalization)
+        assert np.all((s >= 0) & (s <= 1 + 1e-12))
+        np.testing.assert_array_equal(s, s.T)
+    inclusive = isovalue_similarity(bins, 64)
+    # Every isovalue between the volume's min and max crosses some cell, so its self-similarity is 1.
+    present = np.arange(bins.min(), bins.max() + 1)
+    np.testing.assert_allclose(np.diag(inclusive.matrix)[present], 1.0)
+    assert list(inclusive.empty_isovalues) == [b for b in range(64) if not bins.min() <= b <= bins.max()]
+    np.testing.assert_allclose(inclusive.weights.sum(), 1.0)
+    assert inclusive.level_sizes[0] == (19, 16, 14) and inclusive.level_sizes[-1] == (1, 1, 1)
+
+
+def test_strict_crossing_leaves_the_extremes_empty():
+    bins = np.zeros((4, 4, 4), dtype=np.uint8)
+    bins[2:] = 5
+    result = isovalue_similarity(bins, 8, crossing="strict")
+    assert list(result.empty_isovalues) == [0, 5, 6, 7]
+
+
+def test_progress_is_reported_per_level_and_can_abort():
+    bins = np.random.default_rng(0).integers(0, 16, (9, 9, 9))
+    seen = []
+    similarity_matrix(bins, 16, progress=lambda fraction, message: seen.append(fraction))
+    assert seen == pytest.approx([(i + 1) / len(seen) for i in range(len(seen))]) and len(seen) == 4
+
+    class Stop(Exception):
+        pass
+
+    def stop(fraction, message):
+        raise Stop
+
+    with pytest.raises(Stop):
+        similarity_matrix(bins, 16, progress=stop)
+
+
+@pytest.mark.parametrize(
+    "kwargs,message",
+    [
+        ({"crossing": "loose"}, "crossing"),
+        ({"normalization": "max"}, "normalization"),
+        ({"levels": 0}, "levels"),
+        ({"levels": 99}, "levels"),
+    ],
+)
+def test_bad_options_are_rejected(kwargs, message):
+    bins = np.zeros((3, 3, 3), dtype=np.uint8)
+    with pytest.raises(ValueError, match=message):
+        similarity_matrix(bins, 4, **kwargs)
+
+
+def test_bad_bins_are_rejected():
+    with pytest.raises(ValueError, match="3-D"):
+        similarity_matrix(np.zeros((3, 3), dtype=np.uint8), 4)
+    with pytest.raises(ValueError, match="integers"):
+        similarity_matrix(np.zeros((3, 3, 3)), 4)
+    with pytest.raises(ValueError, match=r"\[0, 4\)"):
+        similarity_matrix(np.full((3, 3, 3), 4, dtype=np.uint8), 4)
+
+
+def test_uint16_bins_for_many_isovalues():
+    rng = np.random.default_rng(11)
+    bins = np.sort(rng.integers(0, 1000, (5, 6, 7)), axis=0).astype(np.uint16)
+    fast = similarity_matrix(bins, 1000)
+    bins_used = np.unique(bins)
+    slow = reference_similarity_matrix(bins, 1000)
+    np.testing.assert_allclose(fast[np.ix_(bins_used, bins_used)], slow[np.ix_(bins_used, bins_used)], atol=1e-12)
+    np.testing.assert_allclose(fast, slow, atol=1e-12)
