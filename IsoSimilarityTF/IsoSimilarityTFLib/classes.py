@@ -137,8 +137,13 @@ def background_contact(bins: np.ndarray, labels: np.ndarray, background_id: int)
 
 
 def default_visibility(classes: list[IsovalueClass], max_classes: int) -> list[bool]:
-    """Classes shown by default: the ``max_classes`` largest that are neither background nor on its fringe."""
-    candidates = sorted((c.rank, c.id) for c in classes if not c.background and c.background_contact <= FRINGE_CONTACT)
+    """Classes shown by default: the ``max_classes`` largest that are neither background nor on its fringe.
+
+    When every other class is on the fringe (a tiny or toy volume), they are all candidates: never a blank view.
+    """
+    others = [c for c in classes if not c.background]
+    inner = [c for c in others if c.background_contact <= FRINGE_CONTACT]
+    candidates = sorted((c.rank, c.id) for c in (inner or others))
     shown = {class_id for _, class_id in candidates[:max_classes]}
     return [c.id in shown for c in classes]
 
