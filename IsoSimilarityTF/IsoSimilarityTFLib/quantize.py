@@ -10,7 +10,8 @@ MAX_BINS = 4096
 _SLAB_VOXELS = 1 << 23
 # Integer volumes whose value span is at most this many values are quantized through a lookup table.
 _MAX_LOOKUP_SPAN = 1 << 22
-_HISTOGRAM_CHUNK = 1 << 20
+# Voxels looked up or counted at once: small enough that the index array stays in cache.
+_LOOKUP_CHUNK = 1 << 20
 
 
 @dataclass(frozen=True)
@@ -54,8 +55,8 @@ class Quantization:
         flat = self.bins.reshape(-1)
         counts = np.zeros(self.n_bins, dtype=np.int64)
         # Chunks that stay in cache: bincount converts its input to intp first.
-        for start in range(0, flat.size, _HISTOGRAM_CHUNK):
-            counts += np.bincount(flat[start : start + _HISTOGRAM_CHUNK], minlength=self.n_bins)
+        for start in range(0, flat.size, _LOOKUP_CHUNK):
+            counts += np.bincount(flat[start : start + _LOOKUP_CHUNK], minlength=self.n_bins)
         return counts
 
     def value_to_bin(self, values: np.ndarray) -> np.ndarray:
@@ -127,18 +128,25 @@ def quantize(values: np.ndarray, n_bins: int = 256, value_range: Optional[tuple[
 
     out_dtype = np.uint8 if n_bins <= 256 else np.uint16
     bins = np.empty(values.shape, dtype=out_dtype)
+    flat_in, flat_out = values.reshape(-1), bins.reshape(-1)
     span = data_range[1] - data_range[0]
-    if np.issubdtype(values.dtype, np.integer) and span < _MAX_LOOKUP_SPAN:
-        # Exact and fast: every distinct integer value is binned once, then looked up.
+    if np.issubdtype(values.dtype, np.integer) and values.dtype.itemsize <= 2:
+        # Exact and fast: every possible 8/16-bit pattern is binned once, then looked up by the raw bits.
+        raw_type = values.dtype.newbyteorder("=").str.replace("i", "u")
+        raw = flat_in.view(values.dtype.str.replace("i", "u"))
+        codes = np.arange(2 ** (8 * values.dtype.itemsize), dtype=raw_type).view(values.dtype.newbyteorder("="))
+        table = _bin_index(codes.astype(np.float64), value_range, n_bins).astype(out_dtype)
+        for start in range(0, flat_in.size, _LOOKUP_CHUNK):
+            np.take(table, raw[start : start + _LOOKUP_CHUNK], out=flat_out[start : start + _LOOKUP_CHUNK])
+    elif np.issubdtype(values.dtype, np.integer) and span < _MAX_LOOKUP_SPAN:
+        # Likewise for wider integers whose values span few numbers: every value present is binned once.
         offset = int(data_range[0])
         table = _bin_index(np.arange(offset, offset + int(span) + 1, dtype=np.float64), value_range, n_bins)
         table = table.astype(out_dtype)
-        flat_in, flat_out = values.reshape(-1), bins.reshape(-1)
-        for start in range(0, flat_in.size, _SLAB_VOXELS):
-            chunk = flat_in[start : start + _SLAB_VOXELS].astype(np.int64) - offset
-            flat_out[start : start + _SLAB_VOXELS] = table[chunk]
+        for start in range(0, flat_in.size, _LOOKUP_CHUNK):
+            chunk = flat_in[start : start + _LOOKUP_CHUNK].astype(np.int64) - offset
+            np.take(table, chunk, out=flat_out[start : start + _LOOKUP_CHUNK])
     else:
-        flat_in, flat_out = values.reshape(-1), bins.reshape(-1)
         for start in range(0, flat_in.size, _SLAB_VOXELS):
             chunk = flat_in[start : start + _SLAB_VOXELS].astype(np.float64)
             flat_out[start : start + _SLAB_VOXELS] = _bin_index(chunk, value_range, n_bins)
