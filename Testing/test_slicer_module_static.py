@@ -1,0 +1,395 @@
+"""Static checks of the Slicer module and extension files, without Slicer: build lists, .ui bindings, imports, tests,
+catalog entry, icons and Python 3.9 grammar."""
+
+import ast
+import json
+import re
+import struct
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
+
+from IsoSimilarityTFLib.classes import BACKGROUND_RULES
+from IsoSimilarityTFLib.clustering import PREFERENCES
+from IsoSimilarityTFLib.design import DEFAULT_OPTIONS, UNCONVERGED_RULES
+from IsoSimilarityTFLib.quantize import MAX_BINS
+from IsoSimilarityTFLib.similarity import CROSSINGS, NORMALIZATIONS
+
+ROOT = Path(__file__).resolve().parents[1]
+MODULE_DIR = ROOT / "IsoSimilarityTF"
+MODULE_FILE = MODULE_DIR / "IsoSimilarityTF.py"
+LIB_DIR = MODULE_DIR / "IsoSimilarityTFLib"
+UI_FILE = MODULE_DIR / "Resources" / "UI" / "IsoSimilarityTF.ui"
+CATALOG_FILE = ROOT / "IsoSimilarityTF.json"
+
+# Modules Slicer's Python has besides the standard library (numpy ships with Slicer; scikit-learn does not).
+SLICER_TOP_LEVEL_MODULES = {"slicer", "qt", "ctk", "vtk", "numpy", "IsoSimilarityTFLib"}
+# Widget classes the parameter node wrapper can bind to each parameter type (Slicer's guiConnectors).
+BINDABLE_WIDGETS = {
+    "int": {"QSpinBox", "QSlider"},
+    "float": {"QDoubleSpinBox", "ctkSliderWidget", "qMRMLSliderWidget", "ctkDoubleSpinBox", "ctkDoubleSlider"},
+    "bool": {"QCheckBox", "ctkCheckBox", "QPushButton"},
+    "choice": {"QComboBox", "ctkComboBox"},
+    "node": {"qMRMLNodeComboBox"},
+}
+# Values each Choice-annotated parameter must offer: what the engine accepts.
+ENGINE_CHOICES = {
+    "crossing": set(CROSSINGS),
+    "normalization": set(NORMALIZATIONS),
+    "preference": set(PREFERENCES) | {"number"},
+    "background": set(BACKGROUND_RULES),
+    "unconverged": set(UNCONVERGED_RULES),
+}
+# Parameter node field -> engine option, for the defaults that must agree.
+ENGINE_DEFAULTS = {
+    "bins": "n_bins",
+    "crossing": "crossing",
+    "normalization": "normalization",
+    "preference": "preference",
+    "damping": "damping",
+    "maxIterations": "max_iter",
+    "convergenceIterations": "convergence_iter",
+    "maxClasses": "max_classes",
+    "background": "background",
+    "unconverged": "unconverged",
+}
+
+
+def _module_tree() -> ast.Module:
+    return ast.parse(MODULE_FILE.read_text(encoding="utf-8"))
+
+
+def _class(tree: ast.Module, name: str) -> ast.ClassDef:
+    found = [node for node in tree.body if isinstance(node, ast.ClassDef) and node.name == name]
+    assert found, f"class {name} not found in {MODULE_FILE.name}"
+    return found[0]
+
+
+def _decorator_names(node: ast.ClassDef) -> set:
+    names = set()
+    for decorator in node.decorator_list:
+        target = decorator.func if isinstance(decorator, ast.Call) else decorator
+        names.add(target.attr if isinstance(target, ast.Attribute) else getattr(target, "id", None))
+    return names
+
+
+def _parameter_fields() -> dict:
+    """Annotated fields of the @parameterNodeWrapper class: name -> (annotation node, default node or None)."""
+    tree = _module_tree()
+    wrappers = [
+        node
+        for node in tree.body
+        if isinstance(node, ast.ClassDef) and "parameterNodeWrapper" in _decorator_names(node)
+    ]
+    assert len(wrappers) == 1, "expected exactly one @parameterNodeWrapper class"
+    return {
+        statement.target.id: (statement.annotation, statement.value)
+        for statement in wrappers[0].body
+        if isinstance(statement, ast.AnnAssign) and isinstance(statement.target, ast.Name)
+    }
+
+
+def _annotation_kind(annotation: ast.expr) -> tuple:
+    """("int" | "float" | "bool" | "choice" | "node", choices or None) of a field annotation."""
+    choices = None
+    base = annotation
+    if isinstance(annotation, ast.Subscript) and getattr(annotation.value, "id", None) == "Annotated":
+        elements = annotation.slice.elts
+        base = elements[0]
+        for extra in elements[1:]:
+            if isinstance(extra, ast.Call) and getattr(extra.func, "id", None) == "Choice":
+                choices = ast.literal_eval(extra.args[0])
+    name = getattr(base, "id", None)
+    if choices is not None:
+        return "choice", choices
+    if name and name.startswith("vtkMRML"):
+        return "node", None
+    return name, None
+
+
+def _cmake_list(path: Path, variable: str) -> list:
+    text = path.read_text(encoding="utf-8")
+    match = re.search(rf"set\(\s*{variable}\s+(.*?)\)", text, re.S)
+    assert match, f"{variable} not set in {path}"
+    module_name = re.search(r"set\(\s*MODULE_NAME\s+(\S+)\s*\)", text).group(1)
+    return [item.replace("${MODULE_NAME}", module_name) for item in match.group(1).split()]
+
+
+def _ui_root() -> ET.Element:
+    return ET.parse(UI_FILE).getroot()
+
+
+def _ui_bindings() -> dict:
+    """SlicerParameterName -> widget element."""
+    bindings = {}
+    for widget in _ui_root().iter("widget"):
+        for prop in widget.findall("property"):
+            if prop.get("name") == "SlicerParameterName":
+                name = prop.findtext("string")
+                assert name not in bindings, f"parameter {name} bound to two widgets"
+                bindings[name] = widget
+    return bindings
+
+
+# Build lists --------------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("variable", ["MODULE_PYTHON_SCRIPTS", "MODULE_PYTHON_RESOURCES"])
+def test_every_file_listed_in_the_module_cmakelists_exists(variable):
+    listed = _cmake_list(MODULE_DIR / "CMakeLists.txt", variable)
+    assert listed
+    missing = [item for item in listed if not (MODULE_DIR / item).is_file()]
+    assert not missing, f"listed in IsoSimilarityTF/CMakeLists.txt but missing: {missing}"
+
+
+def test_every_lib_script_and_resource_is_listed():
+    scripts = set(_cmake_list(MODULE_DIR / "CMakeLists.txt", "MODULE_PYTHON_SCRIPTS"))
+    present = {f"IsoSimilarityTFLib/{path.name}" for path in LIB_DIR.glob("*.py")}
+    assert "IsoSimilarityTF.py" in scripts
+    assert not present - scripts, f"Lib scripts not installed with the module: {sorted(present - scripts)}"
+    resources = set(_cmake_list(MODULE_DIR / "CMakeLists.txt", "MODULE_PYTHON_RESOURCES"))
+    assert {"Resources/Icons/IsoSimilarityTF.png", "Resources/UI/IsoSimilarityTF.ui", "Resources/requirements.txt"} <= (
+        resources
+    )
+
+
+def test_module_cmakelists_builds_a_tested_scripted_module():
+    text = (MODULE_DIR / "CMakeLists.txt").read_text(encoding="utf-8")
+    assert re.search(r"slicerMacroBuildScriptedModule\((.*?)WITH_GENERIC_TESTS", text, re.S)
+    assert re.search(
+        r"if\(BUILD_TESTING\)\s*(#[^\n]*\n\s*)*slicer_add_python_unittest\(SCRIPT \$\{MODULE_NAME\}\.py\)", text
+    )
+
+
+def test_top_level_cmakelists():
+    text = (ROOT / "CMakeLists.txt").read_text(encoding="utf-8")
+    assert re.match(r"cmake_minimum_required\(VERSION \d+\.\d+\.\d+\.\.\.\d+\.\d+\.\d+ FATAL_ERROR\)", text)
+    assert re.search(r"^project\(IsoSimilarityTF\)", text, re.M)
+    for variable in ("HOMEPAGE", "CATEGORY", "CONTRIBUTORS", "DESCRIPTION", "ICONURL", "SCREENSHOTURLS", "DEPENDS"):
+        assert re.search(rf'set\(EXTENSION_{variable} "[^"]+"\)', text), f"EXTENSION_{variable} missing"
+    order = [
+        "find_package(Slicer REQUIRED)",
+        "include(${Slicer_USE_FILE})",
+        "add_subdirectory(IsoSimilarityTF)",
+        "include(${Slicer_EXTENSION_GENERATE_CONFIG})",
+        "include(${Slicer_EXTENSION_CPACK})",
+    ]
+    positions = [text.find(line) for line in order]
+    assert -1 not in positions and positions == sorted(positions)
+    icon_url = re.search(r'set\(EXTENSION_ICONURL "([^"]+)"\)', text).group(1)
+    assert icon_url.endswith("/Resources/IsoSimilarityTF.png")
+
+
+# .ui file and parameter node ----------------------------------------------------------------------------------------
+def test_ui_is_a_qmrmlwidget_with_the_scene_connected_to_node_selectors():
+    root = _ui_root()
+    assert root.tag == "ui"
+    top = root.find("widget")
+    assert top.get("class") == "qMRMLWidget"
+    selectors = {w.get("name") for w in top.iter("widget") if w.get("class") == "qMRMLNodeComboBox"}
+    assert selectors
+    connected = {
+        c.findtext("receiver")
+        for c in root.iter("connection")
+        if c.findtext("sender") == top.get("name")
+        and c.findtext("signal") == "mrmlSceneChanged(vtkMRMLScene*)"
+        and c.findtext("slot") == "setMRMLScene(vtkMRMLScene*)"
+    }
+    assert selectors <= connected
+    custom = {c.findtext("class") for c in root.iter("customwidget")}
+    used = {w.get("class") for w in top.iter("widget")} | {top.get("class")}
+    assert {name for name in used if name.startswith(("ctk", "qMRML"))} <= custom
+
+
+def test_ui_widget_names_are_unique():
+    names = [w.get("name") for w in _ui_root().iter("widget")]
+    assert len(names) == len(set(names))
+
+
+def test_ui_bindings_equal_the_parameter_node_fields():
+    assert set(_ui_bindings()) == set(_parameter_fields())
+
+
+def test_each_bound_widget_can_represent_its_parameter_type():
+    fields = _parameter_fields()
+    for name, widget in _ui_bindings().items():
+        kind, _ = _annotation_kind(fields[name][0])
+        assert kind in BINDABLE_WIDGETS, f"{name}: unexpected annotation kind {kind}"
+        assert widget.get("class") in BINDABLE_WIDGETS[kind], f"{name}: {widget.get('class')} cannot show a {kind}"
+
+
+def test_parameter_choices_are_what_the_engine_accepts():
+    fields = _parameter_fields()
+    for name, expected in ENGINE_CHOICES.items():
+        kind, choices = _annotation_kind(fields[name][0])
+        assert kind == "choice"
+        assert set(choices) == expected, name
+
+
+def test_parameter_defaults_agree_with_the_engine():
+    fields = _parameter_fields()
+    for name, option in ENGINE_DEFAULTS.items():
+        default = fields[name][1]
+        assert default is not None, f"{name} has no default"
+        assert ast.literal_eval(default) == DEFAULT_OPTIONS[option], name
+    assert ast.literal_eval(fields["levels"][1]) == 0  # 0 = all levels = DEFAULT_OPTIONS["levels"] None
+    assert DEFAULT_OPTIONS["levels"] is None
+    bins_range = fields["bins"][0].slice.elts[1]
+    assert [ast.literal_eval(a) for a in bins_range.args] == [2, MAX_BINS]
+
+
+def test_every_ui_widget_the_module_uses_exists():
+    used = set()
+    for node in ast.walk(_module_tree()):
+        if (
+            isinstance(node, ast.Attribute)
+            and isinstance(node.value, ast.Attribute)
+            and node.value.attr == "ui"
+            and isinstance(node.value.value, ast.Name)
+            and node.value.value.id in {"self", "widget"}
+        ):
+            used.add(node.attr)
+    names = {w.get("name") for w in _ui_root().iter("widget")}
+    assert used, "the module uses no ui widget?"
+    assert not used - names, f"widgets used by the module but missing from the .ui: {sorted(used - names)}"
+
+
+def test_ui_loaded_from_resources_and_bound_through_the_parameter_node():
+    source = MODULE_FILE.read_text(encoding="utf-8")
+    assert 'slicer.util.loadUI(self.resourcePath("UI/IsoSimilarityTF.ui"))' in source
+    assert "slicer.util.childWidgetVariables(" in source
+    assert "connectGui(self.ui)" in source
+    assert 'tryWithErrorDisplay(_("Failed to compute the transfer function."), waitCursor=True)' in source
+
+
+# Module source ------------------------------------------------------------------------------------------------------
+def test_module_has_the_four_scripted_module_classes():
+    tree = _module_tree()
+    bases = {
+        "IsoSimilarityTF": "ScriptedLoadableModule",
+        "IsoSimilarityTFWidget": "ScriptedLoadableModuleWidget",
+        "IsoSimilarityTFLogic": "ScriptedLoadableModuleLogic",
+        "IsoSimilarityTFTest": "ScriptedLoadableModuleTest",
+    }
+    for name, base in bases.items():
+        assert base in {getattr(b, "id", None) for b in _class(tree, name).bases}, name
+    assert "VTKObservationMixin" in {getattr(b, "id", None) for b in _class(tree, "IsoSimilarityTFWidget").bases}
+
+
+def test_module_imports_only_what_slicer_has_at_top_level():
+    stdlib = set(sys.stdlib_module_names)
+    for node in _module_tree().body:
+        if isinstance(node, ast.Import):
+            names = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            assert node.level == 0, "relative import in a Slicer module"
+            names = [node.module]
+        else:
+            continue
+        for name in names:
+            top = name.split(".")[0]
+            assert top in stdlib or top in SLICER_TOP_LEVEL_MODULES, f"top-level import of {name}"
+
+
+def test_scikit_learn_is_never_imported_at_module_level():
+    for path in [MODULE_FILE, *LIB_DIR.glob("*.py")]:
+        for node in ast.parse(path.read_text(encoding="utf-8")).body:
+            if isinstance(node, ast.Import):
+                assert not any(a.name.split(".")[0] == "sklearn" for a in node.names), path.name
+            if isinstance(node, ast.ImportFrom):
+                assert (node.module or "").split(".")[0] != "sklearn", path.name
+
+
+def test_run_test_calls_every_test_method():
+    test_class = _class(_module_tree(), "IsoSimilarityTFTest")
+    methods = {f.name for f in test_class.body if isinstance(f, ast.FunctionDef) and f.name.startswith("test_")}
+    assert methods
+    run_test = next(f for f in test_class.body if isinstance(f, ast.FunctionDef) and f.name == "runTest")
+    called = {
+        node.attr
+        for node in ast.walk(run_test)
+        if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "self"
+    }
+    assert methods <= called, f"runTest does not call {sorted(methods - called)}"
+
+
+def test_module_tests_download_nothing():
+    source = ast.get_source_segment(
+        MODULE_FILE.read_text(encoding="utf-8"), _class(_module_tree(), "IsoSimilarityTFTest")
+    )
+    for word in ("SampleData", "urllib", "downloadSample", "http://", "https://"):
+        assert word not in source
+
+
+@pytest.mark.parametrize("path", [MODULE_FILE, LIB_DIR / "pictures.py"], ids=lambda p: p.name)
+def test_python_3_9_grammar(path):
+    ast.parse(path.read_text(encoding="utf-8"), filename=str(path), feature_version=(3, 9))
+
+
+def test_no_postponed_annotations_in_the_module():
+    # The parameter node wrapper reads annotations at run time: "from __future__ import annotations" breaks it.
+    for node in _module_tree().body:
+        if isinstance(node, ast.ImportFrom) and node.module == "__future__":
+            assert "annotations" not in {alias.name for alias in node.names}
+
+
+# Catalog entry, resources -------------------------------------------------------------------------------------------
+def test_catalog_entry():
+    entry = json.loads(CATALOG_FILE.read_text(encoding="utf-8"))
+    assert entry["$schema"] == (
+        "https://raw.githubusercontent.com/Slicer/Slicer/main/Schemas/slicer-extension-catalog-entry-schema-v1.0.1.json#"
+    )
+    for key in ("$schema", "category", "scm_url", "scm_revision", "build_dependencies"):
+        assert key in entry, key
+    allowed = {
+        "$schema": str,
+        "category": str,
+        "scm_url": str,
+        "scm_revision": str,
+        "scm_type": str,
+        "build_dependencies": list,
+        "build_subdirectory": str,
+        "enabled": bool,
+        "tier": int,
+    }
+    assert set(entry) <= set(allowed), f"not in schema v1.0.1: {set(entry) - set(allowed)}"
+    for key, value in entry.items():
+        assert isinstance(value, allowed[key]), key
+    assert entry["category"] == "Rendering"
+    assert entry["scm_url"].startswith("https://github.com/")
+    assert 1 <= entry.get("tier", 1) <= 5
+    cmake = (ROOT / "CMakeLists.txt").read_text(encoding="utf-8")
+    assert f'set(EXTENSION_CATEGORY "{entry["category"]}")' in cmake
+    homepage = re.search(r'set\(EXTENSION_HOMEPAGE "([^"]+)"\)', cmake).group(1)
+    assert entry["scm_url"].removesuffix(".git") == homepage
+
+
+@pytest.mark.parametrize(
+    "path", [MODULE_DIR / "Resources" / "Icons" / "IsoSimilarityTF.png", ROOT / "Resources" / "IsoSimilarityTF.png"]
+)
+def test_icons_are_128_pixel_pngs(path):
+    data = path.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    width, height = struct.unpack(">II", data[16:24])
+    assert (width, height) == (128, 128)
+
+
+def test_requirements_name_scikit_learn():
+    lines = (MODULE_DIR / "Resources" / "requirements.txt").read_text(encoding="utf-8").splitlines()
+    requirements = [line.strip() for line in lines if line.strip() and not line.lstrip().startswith("#")]
+    assert any(re.match(r"scikit-learn\s*>=\s*1\.3", r) for r in requirements)
+
+
+def test_classes_table_columns_match_the_module():
+    table = next(w for w in _ui_root().iter("widget") if w.get("name") == "classesTableWidget")
+    assert table.get("class") == "QTableWidget"
+    columns = [c.findtext("property/string") for c in table.findall("column")]
+    assignment = next(
+        node
+        for node in _module_tree().body
+        if isinstance(node, ast.Assign)
+        and isinstance(node.targets[0], ast.Tuple)
+        and all(isinstance(e, ast.Name) and e.id.startswith("COLUMN_") for e in node.targets[0].elts)
+    )
+    assert len(columns) == len(assignment.targets[0].elts) == ast.literal_eval(assignment.value.args[0])
+    assert all(columns)
