@@ -186,6 +186,8 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             self.removeObserver(self._parameterNode, vtk.vtkCommand.ModifiedEvent, self._onParameterNodeModified)
 
     def onSceneStartClose(self, caller, event) -> None:
+        # A design under way would be written into the closing scene: abandon it at its next progress report.
+        self._cancelRequested = self._cancelRequested or self._running
         self.setParameterNode(None)
         self.logic.forgetDesign()
         self._shownVolume = None
