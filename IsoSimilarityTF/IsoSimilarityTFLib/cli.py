@@ -1,0 +1,319 @@
+"""The ``isosimtf`` command: design a volume-rendering transfer function automatically and write it to a folder.
+
+``isosimtf INPUT -o OUTDIR [options]``. INPUT is a volume file (NRRD, MetaImage, NIfTI, VTK image, ``.npy``,
+InVesalius ``.inv3``), a DICOM series folder, or the word ``phantom``. The options mirror the Python names of
+:func:`design_transfer_function`. The work is done by :mod:`.report`; this module only parses arguments, prints and
+turns failures into one error line and an exit status (2: usage or input error, 1: processing error).
+
+Set ``ISOSIMTF_DEBUG=1`` to get the Python traceback of a failure instead of the one-line message.
+"""
+
+import argparse
+import os
+import sys
+from collections.abc import Sequence
+from typing import NoReturn, Optional, Union
+
+from . import __version__
+from .classes import BACKGROUND_RULES
+from .clustering import PREFERENCES, ClusteringError
+from .design import DEFAULT_OPTIONS, UNCONVERGED_RULES
+from .rendering import VIEW_DIRECTIONS
+from .report import (
+    DEFAULT_PHANTOM_SIZE,
+    DEFAULT_SIZE,
+    DEFAULT_VIEW,
+    MIN_SIZE,
+    STAGE_NAMES,
+    OutputError,
+    ProgressPrinter,
+    RenderError,
+    UsageError,
+    run,
+    summary_text,
+)
+from .similarity import CROSSINGS, NORMALIZATIONS
+from .volume_io import VolumeReadError
+
+PROG = "isosimtf"
+EXIT_OK, EXIT_PROCESSING, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line: ``isosimtf: error: ...`` (no usage block)."""
+
+    def error(self, message: str) -> NoReturn:
+        _print_error(f"{message} (see {self.prog} --help)")
+        raise SystemExit(EXIT_USAGE)
+
+
+def _print_error(message: str) -> None:
+    sys.stderr.write(f"{PROG}: error: {' '.join(str(message).split())}\n")
+    sys.stderr.flush()
+
+
+def _print_warning(message: str) -> None:
+    sys.stderr.write(f"{PROG}: warning: {' '.join(str(message).split())}\n")
+    sys.stderr.flush()
+
+
+def _integer(minimum: int):
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be at least {minimum}, got {value}")
+        return value
+
+    return parse
+
+
+def _finite(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if value != value or value in (float("inf"), float("-inf")):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
+def _damping(text: str) -> float:
+    value = _finite(text)
+    if not 0.5 <= value < 1.0:
+        raise argparse.ArgumentTypeError(f"must be in [0.5, 1), got {value:g}")
+    return value
+
+
+def _preference(text: str) -> Union[str, float]:
+    if text in PREFERENCES:
+        return text
+    try:
+        return _finite(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"expected {', '.join(PREFERENCES)} or a number, got {text!r}") from None
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``isosimtf``."""
+    parser = _Parser(
+        prog=PROG,
+        description=(
+            "Design a multi-class volume-rendering transfer function automatically (hierarchical isosurface "
+            "similarity + affinity propagation) and write it, with pictures and a Slicer scene, to OUTDIR."
+        ),
+        epilog=(
+            "Outputs: similarity.npy, similarity.png, classes.json, transfer_function.vp.json, transfer_function.vp, "
+            "and unless --no-render: render.png, classes.png, scene/scene.mrml. Exit status: 0 success, 2 usage or "
+            "input error, 1 processing error."
+        ),
+    )
+    parser.add_argument(
+        "input",
+        metavar="INPUT",
+        help="volume file (.nrrd, .nhdr, .mha, .mhd, .nii, .nii.gz, .vti, .npy, .inv3), a DICOM series folder, "
+        "or the word 'phantom' for the built-in head phantom (write ./phantom for a file of that name)",
+    )
+    parser.add_argument("-o", "--output", metavar="OUTDIR", required=True, help="output folder (created if missing)")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+
+    method = parser.add_argument_group("method (the Python option names of design_transfer_function)")
+    method.add_argument(
+        "--bins",
+        type=_integer(2),
+        default=DEFAULT_OPTIONS["n_bins"],
+        metavar="N",
+        help="number of isovalues (n_bins; default %(default)s)",
+    )
+    method.add_argument(
+        "--range",
+        type=_finite,
+        nargs=2,
+        metavar=("LOW", "HIGH"),
+        dest="value_range",
+        help="value range to quantize, in volume units (value_range; default: the volume's min and max)",
+    )
+    method.add_argument(
+        "--crossing",
+        choices=CROSSINGS,
+        default=DEFAULT_OPTIONS["crossing"],
+        help="when an isovalue crosses a cell (default %(default)s)",
+    )
+    method.add_argument(
+        "--normalization",
+        choices=NORMALIZATIONS,
+        default=DEFAULT_OPTIONS["normalization"],
+        help="similarity normalization (default %(default)s)",
+    )
+    method.add_argument(
+        "--levels", type=_integer(1), metavar="K", help="keep only the K coarsest octree levels (default: all)"
+    )
+    method.add_argument(
+        "--preference",
+        type=_preference,
+        default=DEFAULT_OPTIONS["preference"],
+        metavar="median|minimum|NUMBER",
+        help="affinity propagation preference (default %(default)s; lower gives fewer classes)",
+    )
+    method.add_argument(
+        "--damping",
+        type=_damping,
+        default=DEFAULT_OPTIONS["damping"],
+        help="affinity propagation damping in [0.5, 1) (default %(default)s)",
+    )
+    method.add_argument(
+        "--max-iter",
+        type=_integer(1),
+        default=DEFAULT_OPTIONS["max_iter"],
+        metavar="N",
+        help="affinity propagation iteration limit (default %(default)s)",
+    )
+    method.add_argument(
+        "--convergence-iter",
+        type=_integer(1),
+        default=DEFAULT_OPTIONS["convergence_iter"],
+        metavar="N",
+        help="stable iterations that mean convergence (default %(default)s)",
+    )
+    method.add_argument(
+        "--max-classes",
+        type=_integer(0),
+        default=DEFAULT_OPTIONS["max_classes"],
+        metavar="N",
+        help="classes shown besides the background, largest first (default %(default)s)",
+    )
+    method.add_argument(
+        "--background",
+        choices=BACKGROUND_RULES,
+        default=DEFAULT_OPTIONS["background"],
+        help="which class is the hidden background (default %(default)s)",
+    )
+    method.add_argument(
+        "--unconverged",
+        choices=UNCONVERGED_RULES,
+        default=DEFAULT_OPTIONS["unconverged"],
+        help="what to do when affinity propagation does not converge (default %(default)s)",
+    )
+
+    output = parser.add_argument_group("output")
+    output.add_argument(
+        "--no-render",
+        action="store_true",
+        help="skip render.png, classes.png and the Slicer scene (no slicer-core needed)",
+    )
+    output.add_argument(
+        "--view",
+        choices=tuple(VIEW_DIRECTIONS),
+        default=DEFAULT_VIEW,
+        help="camera direction of the renders (default %(default)s)",
+    )
+    output.add_argument(
+        "--size",
+        type=_integer(MIN_SIZE),
+        default=DEFAULT_SIZE,
+        metavar="PIXELS",
+        help="side of render.png in pixels; class tiles are half of it (default %(default)s)",
+    )
+    output.add_argument(
+        "-q", "--quiet", action="store_true", help="no progress lines on stderr (the summary still goes to stdout)"
+    )
+
+    phantom = parser.add_argument_group("phantom (INPUT 'phantom')")
+    phantom.add_argument(
+        "--phantom-size",
+        type=_integer(8),
+        default=DEFAULT_PHANTOM_SIZE,
+        metavar="N",
+        help="voxels per axis (default %(default)s)",
+    )
+    phantom.add_argument("--seed", type=_integer(0), default=0, help="phantom seed (default %(default)s)")
+    return parser
+
+
+def design_options(args: argparse.Namespace) -> dict:
+    """The ``design_transfer_function`` options named by the parsed arguments."""
+    return {
+        "n_bins": args.bins,
+        "value_range": tuple(args.value_range) if args.value_range else None,
+        "crossing": args.crossing,
+        "normalization": args.normalization,
+        "levels": args.levels,
+        "preference": args.preference,
+        "damping": args.damping,
+        "max_iter": args.max_iter,
+        "convergence_iter": args.convergence_iter,
+        "max_classes": args.max_classes,
+        "background": args.background,
+        "unconverged": args.unconverged,
+    }
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Run ``isosimtf`` with ``argv`` (default: the command line); return the exit status."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exit_request:  # --help, --version, or a usage error already printed
+        return exit_request.code if isinstance(exit_request.code, int) else EXIT_USAGE
+    if args.value_range and not args.value_range[0] < args.value_range[1]:
+        try:
+            low, high = args.value_range
+            parser.error(f"argument --range: LOW must be below HIGH, got {low:g} {high:g}")
+        except SystemExit as exit_request:
+            return exit_request.code if isinstance(exit_request.code, int) else EXIT_USAGE
+
+    total = len(STAGE_NAMES) - (1 if args.no_render else 0)
+    progress = ProgressPrinter(total, stream=sys.stderr, quiet=args.quiet)
+    try:
+        result = run(
+            args.input,
+            args.output,
+            options=design_options(args),
+            render=not args.no_render,
+            view=args.view,
+            size=args.size,
+            phantom_size=args.phantom_size,
+            seed=args.seed,
+            progress=progress,
+            warn=_print_warning,
+        )
+    except BaseException as error:  # one line, no traceback (ISOSIMTF_DEBUG=1 shows it)
+        progress.finish()
+        if os.environ.get("ISOSIMTF_DEBUG"):
+            raise
+        if isinstance(error, KeyboardInterrupt):
+            _print_error("interrupted")
+            return EXIT_INTERRUPTED
+        if isinstance(error, SystemExit):
+            raise
+        _print_error(_message(error))
+        return _exit_status(error)
+    sys.stdout.write(summary_text(result))
+    sys.stdout.flush()
+    return EXIT_OK
+
+
+def _exit_status(error: BaseException) -> int:
+    if isinstance(error, (ClusteringError, OutputError, RenderError, MemoryError)):
+        return EXIT_PROCESSING
+    if isinstance(error, (UsageError, VolumeReadError, ValueError)):
+        return EXIT_USAGE
+    return EXIT_PROCESSING
+
+
+def _message(error: BaseException) -> str:
+    if isinstance(error, MemoryError):
+        return "out of memory (try a smaller volume or fewer --bins)"
+    if isinstance(error, (ClusteringError, OutputError, RenderError, UsageError, VolumeReadError)):
+        return str(error)
+    if isinstance(error, ValueError):
+        return f"invalid input or option: {error}"
+    if isinstance(error, OSError):
+        return f"{error.strerror or error}" + (f": {error.filename}" if error.filename else "")
+    return f"internal error ({type(error).__name__}: {error}); rerun with ISOSIMTF_DEBUG=1 for details"
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
