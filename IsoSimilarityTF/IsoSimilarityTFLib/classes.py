@@ -16,11 +16,15 @@ PALETTE: tuple[tuple[float, float, float], ...] = tuple(
     )
 )  # fmt: skip
 
-# Default opacity grows with the class's intensity rank: dense tissue (bone, contrast) opaque, soft tissue
-# translucent, and the faint classes just above the background nearly clear, so they do not fog the view.
+# Default opacity grows with the class's place in intensity among the shown classes, steeply (4th power): dense tissue
+# (bone, contrast) opaque, the large soft-tissue classes translucent enough to see the bone through them, and the
+# faint classes just above the background nearly clear, so they do not fog the view. The ramp tops out at the
+# densest class holding at least 1% of the non-background voxels: a few noisy voxels denser than bone do not take
+# the top of the ramp from the bone.
 MIN_OPACITY = 0.02
 MAX_OPACITY = 0.8
-OPACITY_EXPONENT = 2.0
+OPACITY_EXPONENT = 4.0
+RAMP_TOP_SHARE = 0.01
 # A class most of whose voxels touch the background is noise scattered in it or the partial-volume rim around
 # objects: shown, it fogs the view, so it starts hidden (the tissue it borders is shown by its own class).
 FRINGE_CONTACT = 0.5
@@ -152,17 +156,22 @@ def default_opacities(classes: list[IsovalueClass], max_classes: int) -> list[fl
     """Default opacity per class: 0 for the background, else rising with intensity across the default shown classes.
 
     A class's place is its exemplar's position among the shown classes' exemplars (0 for the lowest, 1 for the
-    highest, interpolated between and clamped outside), so the densest shown class is the most opaque.
+    densest one holding at least ``RAMP_TOP_SHARE`` of the non-background voxels, interpolated between and clamped
+    outside), so the densest real tissue is the most opaque and the few noisy voxels above it do not take the top.
     """
-    shown = sorted(c.exemplar_bin for c, visible in zip(classes, default_visibility(classes, max_classes)) if visible)
-    if len(shown) < 2:
-        shown = sorted(c.exemplar_bin for c in classes if not c.background) or [0]
-    anchors = np.linspace(0.0, 1.0, len(shown)) if len(shown) > 1 else np.ones(1)
+    shown = [c for c, visible in zip(classes, default_visibility(classes, max_classes)) if visible]
+    others = [c for c in classes if not c.background]
+    tissue_voxels = sum(c.voxels for c in others)
+    top = max((c.exemplar_bin for c in shown if c.voxels >= RAMP_TOP_SHARE * tissue_voxels), default=None)
+    anchors = sorted(c.exemplar_bin for c in shown if top is None or c.exemplar_bin <= top)
+    if len(anchors) < 2:
+        anchors = sorted(c.exemplar_bin for c in others) or [0]
+    places = np.linspace(0.0, 1.0, len(anchors)) if len(anchors) > 1 else np.ones(1)
     return [
         0.0
         if c.background
         else MIN_OPACITY
-        + (MAX_OPACITY - MIN_OPACITY) * float(np.interp(c.exemplar_bin, shown, anchors)) ** OPACITY_EXPONENT
+        + (MAX_OPACITY - MIN_OPACITY) * float(np.interp(c.exemplar_bin, anchors, places)) ** OPACITY_EXPONENT
         for c in classes
     ]
 
