@@ -143,13 +143,14 @@ def test_closing_the_scene_mid_way_gives_a_clear_error(slicer_app, phantom, phan
 def test_render_uses_our_property_and_follows_class_edits(slicer_app, phantom, phantom_design):
     design = type(phantom_design).from_json(phantom_design.to_json())
     volume = add_phantom(slicer_app, phantom)
+    skin = next(c for c in design.classes if c.visible and any(lo <= 60 < hi for lo, hi in c.value_ranges))
+    design.set_class(skin.id, opacity=0.5)  # the outside of the head: make it count in the picture
     node = apply_design(volume, design, slicer_app.volume_rendering_logic)
     full = slicer_app.render()
     assert slicer_app.get_volume_actor(volume).GetProperty() is node.GetVolumeProperty()
     assert np.count_nonzero(full.any(axis=2)) > 0.05 * full.shape[0] * full.shape[1]
 
     # Hiding the class that covers the outside of the head (soft tissue) changes the picture.
-    skin = next(c for c in design.classes if c.visible and any(lo <= 60 < hi for lo, hi in c.value_ranges))
     design.set_class(skin.id, visible=False)
     update_property_node(node, design)
     hidden = slicer_app.render()
