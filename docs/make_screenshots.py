@@ -1,0 +1,44 @@
+"""Regenerate the README pictures under Resources/Screenshots with the isosimtf tool itself.
+
+Run from the repository root: .venv/bin/python docs/make_screenshots.py (needs the Debian packages
+invesalius-examples and mricron-data for the two real volumes). Class grids are stored as 256-colour PNGs
+(Pillow's max-coverage quantizer) to keep the repository small.
+"""
+
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+from PIL import Image
+
+from IsoSimilarityTFLib.volume_io import real_dataset_path
+
+ROOT = Path(__file__).resolve().parents[1]
+SHOTS = ROOT / "Resources" / "Screenshots"
+TOOL = Path(sys.executable).with_name("isosimtf")
+
+
+def main() -> None:
+    inputs = {
+        "phantom": "phantom",
+        "head-ct": real_dataset_path("head-ct"),
+        "brain-mri": real_dataset_path("brain-mri"),
+    }
+    SHOTS.mkdir(parents=True, exist_ok=True)
+    for name, source in inputs.items():
+        if source is None:
+            print(f"skipping {name}: its Debian data package is not installed")
+            continue
+        with tempfile.TemporaryDirectory() as out:
+            subprocess.run([str(TOOL), str(source), "-o", out, "--size", "320", "--quiet"], check=True)
+            shutil.copyfile(Path(out) / "render.png", SHOTS / f"{name}-render.png")
+            shutil.copyfile(Path(out) / "similarity.png", SHOTS / f"{name}-similarity.png")
+            grid = Image.open(Path(out) / "classes.png").convert("RGB")
+            grid.quantize(256, method=Image.Quantize.MAXCOVERAGE).save(SHOTS / f"{name}-classes.png", optimize=True)
+        print(f"{name}: done")
+
+
+if __name__ == "__main__":
+    main()
