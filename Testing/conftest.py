@@ -6,7 +6,7 @@ import pytest
 
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 
-from IsoSimilarityTFLib import rendering  # noqa: E402
+from IsoSimilarityTFLib import rendering
 
 
 @pytest.fixture()

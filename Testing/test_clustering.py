@@ -51,7 +51,10 @@ def shells_similarity():
 
 def test_lower_preference_gives_fewer_classes_on_a_real_like_volume():
     s = shells_similarity()
-    runs = [cluster_isovalues(s, preference=p, damping=0.7, max_iter=400, convergence_iter=25) for p in (-0.05, "median", "minimum")]
+    runs = [
+        cluster_isovalues(s, preference=p, damping=0.7, max_iter=400, convergence_iter=25)
+        for p in (-0.05, "median", "minimum")
+    ]
     assert all(r.converged for r in runs)
     assert runs[0].n_classes > runs[1].n_classes > runs[2].n_classes > 1
 
