@@ -1,0 +1,921 @@
+"""Speed and memory benchmark of the IsoSimilarityTF pipeline (GitHub issue 6).
+
+Usage::
+
+    .venv/bin/python benchmarks/bench.py            # full run (~6-9 min on 2 cores), writes benchmarks/results/bench.*
+    .venv/bin/python benchmarks/bench.py --quick    # short run (~1-2 min), writes benchmarks/results/bench-quick.*
+
+Method
+------
+* Every configuration (volume x options) runs in a fresh child process (``bench.py --child JSON``), so peak-memory
+  figures of one case do not leak into another and every case starts with the same imports.
+* Times are ``time.perf_counter`` wall-clock seconds; the reported figure is the MEDIAN over the warm runs (>= 5 for
+  volumes up to 256^3, >= 3 for 384^3 and 512^3). The first pipeline call of each child is run once before them and
+  reported apart as "first call": it includes importing scikit-learn (~1 s) and first-touch page faults.
+* Stages: load (reading the file; for phantoms: generating it), quantize, similarity, clustering (affinity
+  propagation), classes, tf (building the ``vtkVolumeProperty`` from the classes) and render (a 512x512 headless Slicer
+  CPU ray-cast picture of the volume with the designed TF, new scene each time: volume copy + first render).
+  "pipeline" = quantize + similarity + clustering + classes + tf of the same run.
+  quantize..classes are timed by ``design_transfer_function`` itself (``design.timings_s``).
+* Peak memory per stage: just before a stage starts, the kernel's peak-RSS counter of the child is reset to the
+  current RSS (``echo 5 > /proc/self/clear_refs``); when the stage ends ``VmHWM`` (peak RSS) is read from
+  ``/proc/self/status``. The stage's figure is ``VmHWM - VmRSS(at stage start)``: the extra resident memory the stage
+  needed at its peak, exact (kernel accounting, no sampling) and free of timing overhead. Stage boundaries inside
+  ``design_transfer_function`` are caught through its ``progress`` callback. The maximum over the warm runs is
+  reported. "process peak" is the absolute ``VmHWM`` of the child during the pipeline, i.e. including the Python
+  interpreter, numpy/scikit-learn/VTK libraries and the input volume. Where ``clear_refs`` cannot be written, a psutil
+  thread sampling RSS every 1 ms is used instead (this is said in the output).
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import math
+import os
+import platform
+import re
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+RESULTS = HERE / "results"
+CHILD_MARK = "BENCHJSON:"
+
+# Figures of the thesis (Table 4.1 / 4.2, 256^3 volumes): similarity 13 min, classification 22-50 s.
+THESIS_SIMILARITY_S = 780.0
+THESIS_CLASSIFICATION_S = (22.0, 50.0)
+
+# Targets of issue 6.
+TARGET_SIM_256_UINT8_S = 0.25
+TARGET_PIPELINE_256_UINT8_S = 0.5
+TARGET_PIPELINE_512_INT16_S = 3.0
+TARGET_PEAK_512_INT16_MB = 1.5 * 1024
+
+STAGES = ("load", "quantize", "similarity", "clustering", "classes", "tf", "render")
+PIPELINE_STAGES = ("quantize", "similarity", "clustering", "classes", "tf")
+
+
+# ----------------------------------------------------------------------------------------------------- memory probes
+
+
+def _status_kb(key: str) -> int:
+    with open("/proc/self/status") as handle:
+        match = re.search(rf"^{key}:\s+(\d+)\s+kB", handle.read(), re.MULTILINE)
+    if match is None:
+        raise OSError(f"{key} not in /proc/self/status")
+    return int(match.group(1))
+
+
+class PeakMeter:
+    """Peak RSS over a stretch of code: kernel high-water mark reset (Linux), else a 1 ms psutil sampling thread."""
+
+    def __init__(self) -> None:
+        self.method = "clear_refs"
+        try:
+            self._reset_kernel()
+            _status_kb("VmHWM")
+        except OSError:
+            self.method = "psutil-1ms"
+            import psutil
+
+            self._process = psutil.Process()
+            self._peak = 0
+            self._running = True
+            self._thread = threading.Thread(target=self._sample, daemon=True)
+            self._thread.start()
+
+    @staticmethod
+    def _reset_kernel() -> None:
+        with open("/proc/self/clear_refs", "w") as handle:
+            handle.write("5")
+
+    def _sample(self) -> None:
+        while self._running:
+            self._peak = max(self._peak, self._process.memory_info().rss)
+            time.sleep(0.001)
+
+    def rss_mb(self) -> float:
+        if self.method == "clear_refs":
+            return _status_kb("VmRSS") / 1024.0
+        return self._process.memory_info().rss / 2**20
+
+    def reset(self) -> float:
+        """Reset the peak to the current RSS; returns the current RSS in MB."""
+        if self.method == "clear_refs":
+            self._reset_kernel()
+        else:
+            self._peak = self._process.memory_info().rss
+        return self.rss_mb()
+
+    def peak_mb(self) -> float:
+        if self.method == "clear_refs":
+            return _status_kb("VmHWM") / 1024.0
+        return max(self._peak, self._process.memory_info().rss) / 2**20
+
+
+# ----------------------------------------------------------------------------------------------------- volumes
+
+
+def _load_volume(cfg: dict) -> tuple[Any, tuple[float, float, float]]:
+    """The configuration's volume ``[k, j, i]`` and spacing (x, y, z) mm."""
+    import numpy as np
+
+    from IsoSimilarityTFLib.phantom import head_phantom
+
+    source = cfg["source"]
+    if source == "phantom":
+        phantom = head_phantom(cfg["size"], seed=0)
+        return phantom.values, phantom.spacing
+    if source == "phantom-uint8":
+        # The phantom rescaled to 8 bits: [-1024, 1016] HU -> 0..255 (8 HU per step), as an 8-bit export would.
+        phantom = head_phantom(cfg["size"], seed=0)
+        values = np.clip((phantom.values.astype(np.int32) + 1024) // 8, 0, 255).astype(np.uint8)
+        return values, phantom.spacing
+    if source == "noise-uint8":
+        size = cfg["size"]
+        return np.random.default_rng(0).integers(0, 256, (size, size, size), dtype=np.uint8), (1.0, 1.0, 1.0)
+    if source in ("head-ct", "brain-mri"):
+        from IsoSimilarityTFLib.volume_io import read_volume, real_dataset_path
+
+        path = real_dataset_path(source)
+        if path is None:
+            raise FileNotFoundError(f"{source}: Debian data package not installed")
+        volume = read_volume(path)
+        return volume.values, volume.spacing
+    raise ValueError(f"unknown source {source!r}")
+
+
+# ----------------------------------------------------------------------------------------------------- child side
+
+
+def _median(values: list[float]) -> float | None:
+    values = sorted(v for v in values if v is not None)
+    if not values:
+        return None
+    mid = len(values) // 2
+    return values[mid] if len(values) % 2 else 0.5 * (values[mid - 1] + values[mid])
+
+
+def _child_pipeline(cfg: dict) -> dict:
+    """One configuration: load, a first (cold) call, warm runs with per-stage time and peak memory, renders."""
+    os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+    import numpy as np
+
+    import IsoSimilarityTFLib
+    from IsoSimilarityTFLib import design_transfer_function
+    from IsoSimilarityTFLib.clustering import ClusteringError
+
+    meter = PeakMeter()
+    out: dict[str, Any] = {"config": cfg, "memory_method": meter.method, "loadavg_start": os.getloadavg()}
+    out["rss_after_imports_mb"] = meter.rss_mb()
+    options = dict(cfg.get("options", {}))
+    repeats = int(cfg["repeats"])
+
+    # load: the first one is measured for memory from the fresh process.
+    load_times, load_peak = [], None
+    values = spacing = None
+    for _ in range(repeats if cfg.get("repeat_load", True) else 1):
+        values = spacing = None
+        start_rss = meter.reset()
+        start = time.perf_counter()
+        values, spacing = _load_volume(cfg)
+        load_times.append(time.perf_counter() - start)
+        if load_peak is None:
+            load_peak = meter.peak_mb() - start_rss
+    out["shape"] = list(values.shape)
+    out["dtype"] = str(values.dtype)
+    out["voxels"] = int(values.size)
+    out["volume_mb"] = values.nbytes / 2**20
+
+    def design_once(stage_memory: dict | None) -> Any:
+        state = {"stage": None, "start_rss": 0.0}
+
+        def progress(stage: str, fraction: float, message: str) -> None:
+            if stage_memory is None:
+                return
+            if stage != state["stage"]:
+                if state["stage"] is not None:
+                    stage_memory[state["stage"]] = (meter.peak_mb() - state["start_rss"], meter.peak_mb())
+                state["stage"], state["start_rss"] = stage, meter.reset()
+            elif stage == "classes" and fraction >= 1.0:
+                stage_memory[stage] = (meter.peak_mb() - state["start_rss"], meter.peak_mb())
+
+        try:
+            return design_transfer_function(values, spacing, progress=progress, **options), None
+        except ClusteringError as error:
+            kept = {**options, "unconverged": "keep"}
+            return design_transfer_function(values, spacing, progress=progress, **kept), str(error)
+
+    # first (cold) call: scikit-learn is imported here.
+    sklearn_loaded = "sklearn" in sys.modules
+    start = time.perf_counter()
+    design, note = design_once(None)
+    first_total = time.perf_counter() - start
+    start = time.perf_counter()
+    design.volume_property()
+    out["first_call"] = {
+        **design.timings_s,
+        "tf": time.perf_counter() - start,
+        "total": first_total,
+        "sklearn_already_imported": sklearn_loaded,
+    }
+    out["rss_before_runs_mb"] = meter.rss_mb()
+
+    runs = []
+    for _ in range(repeats):
+        memory: dict[str, tuple[float, float]] = {}
+        pipeline_start_rss = meter.rss_mb()
+        design, note = design_once(memory)
+        start_rss = meter.reset()
+        start = time.perf_counter()
+        volume_property = design.volume_property()
+        tf_time = time.perf_counter() - start
+        memory["tf"] = (meter.peak_mb() - start_rss, meter.peak_mb())
+        times = {**design.timings_s, "tf": tf_time}
+        runs.append(
+            {
+                "times": times,
+                "pipeline": sum(times[s] for s in PIPELINE_STAGES),
+                "memory_increase_mb": {s: m[0] for s, m in memory.items()},
+                "process_peak_mb": max(m[1] for m in memory.values()),
+                "pipeline_start_rss_mb": pipeline_start_rss,
+            }
+        )
+    out["clustering"] = {k: v for k, v in design.clustering.items() if k != "empty_isovalues"}
+    out["n_empty_isovalues"] = len(design.clustering.get("empty_isovalues", []))
+    out["n_classes"] = design.clustering["n_classes"]
+    out["clustering_note"] = note
+
+    median_times = {s: _median([r["times"][s] for r in runs]) for s in PIPELINE_STAGES}
+    median_times["load"] = _median(load_times)
+    median_times["pipeline"] = _median([r["pipeline"] for r in runs])
+    memory_increase = {s: max(r["memory_increase_mb"][s] for r in runs) for s in PIPELINE_STAGES}
+    memory_increase["load"] = load_peak
+    out["runs"] = runs
+    out["load_times"] = load_times
+
+    # extra similarity timings (e.g. the thesis' 8 levels on 256^3)
+    if cfg.get("extra_levels"):
+        from IsoSimilarityTFLib import quantize, similarity_matrix
+
+        quantized = quantize(values, options.get("n_bins", 256))
+        extra = []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            similarity_matrix(quantized.bins, quantized.n_bins, levels=int(cfg["extra_levels"]))
+            extra.append(time.perf_counter() - start)
+        out["similarity_levels"] = {"levels": int(cfg["extra_levels"]), "median_s": _median(extra), "times": extra}
+
+    if cfg.get("render"):
+        from IsoSimilarityTFLib.rendering import render_volume
+
+        size = (512, 512)
+        start = time.perf_counter()
+        picture = render_volume(values, spacing, volume_property, size=size)
+        out["first_render_s"] = time.perf_counter() - start
+        render_times, render_peak = [], 0.0
+        for _ in range(int(cfg.get("render_repeats", min(repeats, 3)))):
+            start_rss = meter.reset()
+            start = time.perf_counter()
+            picture = render_volume(values, spacing, volume_property, size=size)
+            render_times.append(time.perf_counter() - start)
+            render_peak = max(render_peak, meter.peak_mb() - start_rss)
+        median_times["render"] = _median(render_times)
+        memory_increase["render"] = render_peak
+        out["render_times"] = render_times
+        out["render_nonblack_fraction"] = float(np.mean(picture.max(axis=2) > 10))
+
+    out["median_s"] = median_times
+    out["peak_increase_mb"] = memory_increase
+    out["process_peak_mb"] = max(r["process_peak_mb"] for r in runs)
+    out["pipeline_peak_increase_mb"] = max(r["process_peak_mb"] - r["pipeline_start_rss_mb"] for r in runs)
+    out["loadavg_end"] = os.getloadavg()
+    out["library_version"] = IsoSimilarityTFLib.__version__
+    return out
+
+
+def _child_reference(cfg: dict) -> dict:
+    """Fast similarity against the explicit incidence-matrix reference on one small phantom."""
+    import numpy as np
+
+    from IsoSimilarityTFLib import quantize, similarity_matrix
+    from IsoSimilarityTFLib.phantom import head_phantom
+    from IsoSimilarityTFLib.reference import reference_similarity_matrix
+
+    meter = PeakMeter()
+    phantom = head_phantom(cfg["size"], seed=0)
+    quantized = quantize(phantom.values, cfg["n_bins"])
+    options = {"crossing": "inclusive", "normalization": "thesis"}
+    fast_times = []
+    similarity_matrix(quantized.bins, quantized.n_bins, **options)
+    for _ in range(int(cfg["fast_repeats"])):
+        start = time.perf_counter()
+        fast = similarity_matrix(quantized.bins, quantized.n_bins, **options)
+        fast_times.append(time.perf_counter() - start)
+    reference_times, reference_peak = [], 0.0
+    for _ in range(int(cfg["reference_repeats"])):
+        start_rss = meter.reset()
+        start = time.perf_counter()
+        reference = reference_similarity_matrix(quantized.bins, quantized.n_bins, **options)
+        reference_times.append(time.perf_counter() - start)
+        reference_peak = max(reference_peak, meter.peak_mb() - start_rss)
+    start_rss = meter.reset()
+    similarity_matrix(quantized.bins, quantized.n_bins, **options)
+    fast_peak = meter.peak_mb() - start_rss
+    return {
+        "config": cfg,
+        "memory_method": meter.method,
+        "shape": list(phantom.values.shape),
+        "voxels": int(phantom.values.size),
+        "fast_median_s": _median(fast_times),
+        "fast_times": fast_times,
+        "reference_median_s": _median(reference_times),
+        "reference_times": reference_times,
+        "fast_peak_increase_mb": fast_peak,
+        "reference_peak_increase_mb": reference_peak,
+        "max_abs_difference": float(np.max(np.abs(fast - reference))),
+        "loadavg_end": os.getloadavg(),
+    }
+
+
+def _child_main(text: str) -> None:
+    cfg = json.loads(text)
+    result = _child_reference(cfg) if cfg["kind"] == "reference" else _child_pipeline(cfg)
+    print(CHILD_MARK + json.dumps(result), flush=True)
+
+
+# ----------------------------------------------------------------------------------------------------- parent side
+
+
+def run_child(cfg: dict, timeout: float) -> dict:
+    """Run one configuration in a fresh interpreter; returns its result or ``{"error": ...}``."""
+    env = dict(os.environ)
+    env.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+    command = [sys.executable, str(Path(__file__).resolve()), "--child", json.dumps(cfg)]
+    start = time.perf_counter()
+    try:
+        completed = subprocess.run(command, capture_output=True, text=True, timeout=timeout, env=env, cwd=ROOT)
+    except subprocess.TimeoutExpired:
+        return {"config": cfg, "error": f"did not finish within {timeout:.0f} s", "wall_s": timeout}
+    for line in reversed(completed.stdout.splitlines()):
+        if line.startswith(CHILD_MARK):
+            result = json.loads(line[len(CHILD_MARK) :])
+            result["wall_s"] = time.perf_counter() - start
+            return result
+    tail = (completed.stderr or completed.stdout).strip().splitlines()[-5:]
+    return {"config": cfg, "error": f"exit code {completed.returncode}: " + " | ".join(tail)}
+
+
+def machine_description() -> dict:
+    import numpy
+    import sklearn
+    import vtk
+
+    cpu = "unknown"
+    try:
+        with open("/proc/cpuinfo") as handle:
+            for line in handle:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    try:
+        import psutil
+
+        ram_gb = psutil.virtual_memory().total / 2**30
+    except ImportError:  # pragma: no cover
+        ram_gb = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
+    try:
+        from importlib.metadata import version
+
+        slicer_core = version("slicer-core")
+    except Exception:
+        slicer_core = "not installed"
+    return {
+        "cpu": cpu,
+        "logical_cores": os.cpu_count(),
+        "ram_gb": round(ram_gb, 1),
+        "os": platform.platform(),
+        "python": platform.python_version(),
+        "numpy": numpy.__version__,
+        "scikit_learn": sklearn.__version__,
+        "vtk": vtk.vtkVersion.GetVTKVersion(),
+        "slicer_core": slicer_core,
+        "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
+        "loadavg_at_start": os.getloadavg(),
+    }
+
+
+def configurations(quick: bool) -> dict[str, list[dict]]:
+    """All benchmark cases, grouped by section."""
+    rep_small, rep_large = (3, 1) if quick else (5, 3)
+    phantom_sizes = (64, 128, 256) if quick else (64, 128, 256, 384, 512)
+    sizes = []
+    for n in phantom_sizes:
+        cfg = {
+            "kind": "pipeline",
+            "name": f"phantom {n}^3 int16",
+            "source": "phantom",
+            "size": n,
+            "repeats": rep_small if n <= 256 else rep_large,
+            "render": not quick or n == 128,
+            "extra_levels": 8 if n == 256 else None,
+        }
+        sizes.append(cfg)
+    real = [
+        {
+            "kind": "pipeline",
+            "name": "head CT (Cranium.inv3)",
+            "source": "head-ct",
+            "repeats": rep_small,
+            "render": True,
+        },
+        {
+            "kind": "pipeline",
+            "name": "brain MRI (ch2.nii.gz)",
+            "source": "brain-mri",
+            "repeats": rep_small,
+            "render": not quick,
+        },
+    ]
+    targets = [
+        {
+            "kind": "pipeline",
+            "name": "target: 256^3 uint8 (phantom, 8 HU/step)",
+            "source": "phantom-uint8",
+            "size": 256,
+            "repeats": 3 if quick else 7,
+            "render": False,
+        },
+        {
+            "kind": "pipeline",
+            "name": "stress: 256^3 uint8 white noise",
+            "source": "noise-uint8",
+            "size": 256,
+            "repeats": 3 if quick else 5,
+            "render": False,
+            "options": {"unconverged": "keep"},
+        },
+    ]
+    if quick:
+        targets.append(
+            {
+                "kind": "pipeline",
+                "name": "phantom 512^3 int16",
+                "source": "phantom",
+                "size": 512,
+                "repeats": 1,
+                "render": False,
+                "repeat_load": False,
+            }
+        )
+    bins = []
+    for n_bins in (1024,) if quick else (1024, 4096):
+        bins.append(
+            {
+                "kind": "pipeline",
+                "name": f"phantom 128^3, {n_bins} bins",
+                "source": "phantom",
+                "size": 128,
+                "repeats": 3 if n_bins <= 1024 else 1,
+                "render": False,
+                "repeat_load": False,
+                # AP on >1000 isovalues often needs more than 200 iterations: time one damping, report convergence.
+                "options": {"n_bins": n_bins, "unconverged": "keep"},
+            }
+        )
+    reference = []
+    for n in (16, 24) if quick else (16, 24, 32, 40, 48):
+        reference.append(
+            {
+                "kind": "reference",
+                "name": f"reference {n}^3",
+                "size": n,
+                "n_bins": 256,
+                "fast_repeats": 7,
+                "reference_repeats": 3 if n <= 24 else 1,
+            }
+        )
+    return {"sizes": sizes, "real": real, "targets": targets, "bins": bins, "reference": reference}
+
+
+# ----------------------------------------------------------------------------------------------------- reporting
+
+
+def _fmt_s(value: float | None) -> str:
+    if value is None:
+        return "-"
+    if value >= 100:
+        return f"{value:.0f} s"
+    if value >= 1:
+        return f"{value:.2f} s"
+    return f"{value * 1000:.1f} ms"
+
+
+def _fmt_mb(value: float | None) -> str:
+    return "-" if value is None else f"{value:.0f} MB"
+
+
+def _table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def _by_name(results: list[dict], name: str) -> dict | None:
+    return next((r for r in results if r["config"]["name"] == name and "error" not in r), None)
+
+
+def _linear_fit(xs: list[float], ys: list[float]) -> dict:
+    import numpy as np
+
+    x, y = np.asarray(xs, dtype=float), np.asarray(ys, dtype=float)
+    slope, intercept = np.polyfit(x, y, 1)
+    predicted = slope * x + intercept
+    ss_res, ss_tot = float(np.sum((y - predicted) ** 2)), float(np.sum((y - y.mean()) ** 2))
+    loglog = float(np.polyfit(np.log(x), np.log(np.maximum(y, 1e-9)), 1)[0]) if len(x) > 1 else None
+    return {
+        "ns_per_voxel": float(slope * 1e9),
+        "intercept_ms": float(intercept * 1e3),
+        "r2": 1.0 - ss_res / ss_tot if ss_tot > 0 else 1.0,
+        "loglog_exponent": loglog,
+    }
+
+
+def build_report(machine: dict, groups: dict[str, list[dict]], quick: bool, wall_s: float) -> tuple[str, dict]:
+    """Markdown and JSON summaries (also the PASS/FAIL verdicts)."""
+    everything = [r for group in groups.values() for r in group]
+    md: list[str] = []
+    summary: dict[str, Any] = {"machine": machine, "mode": "quick" if quick else "full", "wall_s": wall_s}
+    md.append(f"# IsoSimilarityTF benchmark ({'quick' if quick else 'full'} run)\n")
+    md.append("Written by `benchmarks/bench.py`; see `docs/evaluation.md` for the discussion.\n")
+    md.append("## Machine\n")
+    md.append(_table(["item", "value"], [[k, v] for k, v in machine.items()]))
+    method = next((r.get("memory_method") for r in everything if r.get("memory_method")), "?")
+    md.append(
+        "\n\nTimes: median of warm runs (the first call of each fresh process, which imports scikit-learn, is "
+        "excluded and listed separately). Memory: peak RSS increase of the stage over the RSS at its start "
+        f"(method: `{method}`; kernel peak-RSS reset + VmHWM, one fresh process per configuration). "
+        "pipeline = quantize + similarity + clustering + classes + tf. "
+        "Render = 512x512 headless Slicer CPU ray casting, new scene each time.\n"
+    )
+
+    # ---- targets
+    verdicts = []
+    uint8 = _by_name(everything, "target: 256^3 uint8 (phantom, 8 HU/step)")
+    big = _by_name(everything, "phantom 512^3 int16")
+    if uint8:
+        sim = uint8["median_s"]["similarity"]
+        pipe = uint8["median_s"]["pipeline"]
+        verdicts.append(
+            [
+                "256^3 uint8 similarity (all 9 levels), median",
+                f"<= {TARGET_SIM_256_UINT8_S} s",
+                _fmt_s(sim),
+                "PASS" if sim <= TARGET_SIM_256_UINT8_S else "FAIL",
+            ]
+        )
+        verdicts.append(
+            [
+                "256^3 uint8 whole pipeline (quantize+similarity+AP+classes+TF), median",
+                f"<= {TARGET_PIPELINE_256_UINT8_S} s",
+                _fmt_s(pipe),
+                "PASS" if pipe <= TARGET_PIPELINE_256_UINT8_S else "FAIL",
+            ]
+        )
+    if big:
+        pipe = big["median_s"]["pipeline"]
+        peak = big["process_peak_mb"]
+        ok = pipe <= TARGET_PIPELINE_512_INT16_S and peak <= TARGET_PEAK_512_INT16_MB
+        verdicts.append(
+            [
+                "512^3 int16 whole pipeline, median; process peak RSS",
+                f"<= {TARGET_PIPELINE_512_INT16_S} s; <= 1.5 GB",
+                f"{_fmt_s(pipe)}; {peak / 1024:.2f} GB (pipeline's own increase "
+                f"{big['pipeline_peak_increase_mb']:.0f} MB)",
+                "PASS" if ok else "FAIL",
+            ]
+        )
+    summary["targets"] = [dict(zip(["target", "limit", "measured", "verdict"], v)) for v in verdicts]
+    md.append("\n## Targets of issue 6\n")
+    md.append(_table(["target", "limit", "measured", "verdict"], verdicts))
+    md.append(
+        "\n\nThe 256^3 uint8 case is the phantom rescaled to 8 bits (8 HU per step); the 512^3 int16 case is the "
+        "phantom. Process peak RSS includes the interpreter, the libraries and the input volume.\n"
+    )
+
+    # ---- per configuration stage table
+    md.append("\n## Per-stage median time and peak memory increase\n")
+    rows = []
+    for r in everything:
+        if r["config"]["kind"] != "pipeline":
+            continue
+        if "error" in r:
+            rows.append([r["config"]["name"], "-", "-", r["error"], "", "", "", "", "", "", "", ""])
+            continue
+        med, mem = r["median_s"], r["peak_increase_mb"]
+        cells = [r["config"]["name"], "x".join(str(n) for n in r["shape"]), str(len(r["runs"]))]
+        for stage in STAGES:
+            cells.append(f"{_fmt_s(med.get(stage))} / {_fmt_mb(mem.get(stage))}" if stage in med else "-")
+        cells.append(_fmt_s(med["pipeline"]))
+        cells.append(f"{r['process_peak_mb']:.0f} MB")
+        conv = r["clustering"]
+        cells.append(
+            f"{r['n_classes']} ({'conv.' if conv['converged'] else 'NOT conv.'} {conv['n_iter']} it, "
+            f"damping {conv.get('damping', '?')})"
+        )
+        rows.append(cells)
+    md.append(
+        _table(
+            [
+                "case",
+                "shape (z,y,x)",
+                "runs",
+                *[f"{s} (time / mem)" for s in STAGES],
+                "pipeline",
+                "process peak",
+                "AP classes",
+            ],
+            rows,
+        )
+    )
+    md.append("\n\nFirst (cold) call in each fresh process, for comparison (includes importing scikit-learn):\n")
+    rows = []
+    for r in everything:
+        if r["config"]["kind"] == "pipeline" and "error" not in r:
+            first = r["first_call"]
+            rows.append(
+                [
+                    r["config"]["name"],
+                    _fmt_s(first["clustering"]),
+                    _fmt_s(first["total"]),
+                    _fmt_s(r["median_s"]["clustering"]),
+                    _fmt_s(r["median_s"]["pipeline"]),
+                    _fmt_s(r.get("first_render_s")),
+                ]
+            )
+    md.append(
+        _table(
+            [
+                "case",
+                "first-call clustering",
+                "first-call total",
+                "warm clustering",
+                "warm pipeline",
+                "first render (imports Slicer)",
+            ],
+            rows,
+        )
+    )
+
+    # ---- scaling with voxel count
+    sizes = [r for r in groups["sizes"] if "error" not in r]
+    scaling = {}
+    if len(sizes) >= 2:
+        md.append("\n\n## Scaling with voxel count (phantom)\n")
+        voxels = [r["voxels"] for r in sizes]
+        # The fit leaves out volumes below 128^3, where fixed per-call costs (n_bins^2 work per level, Python
+        # overhead) dominate; the local exponent is log(t2 / t1) / log(N2 / N1) between the two largest sizes.
+        fit_at = [i for i, v in enumerate(voxels) if v >= 128**3] or list(range(len(voxels)))
+        rows = []
+        for stage in ("quantize", "similarity", "clustering", "classes", "tf", "pipeline"):
+            times = [r["median_s"][stage] for r in sizes]
+            fit = _linear_fit([voxels[i] for i in fit_at], [times[i] for i in fit_at])
+            local = math.log(times[-1] / times[-2]) / math.log(voxels[-1] / voxels[-2]) if len(times) > 1 else None
+            fit["local_exponent_largest"] = local
+            scaling[stage] = {**fit, "voxels": voxels, "median_s": times, "fitted_sizes": fit_at}
+            per_voxel = ", ".join(f"{t / v * 1e9:.1f}" for t, v in zip(times, voxels))
+            rows.append(
+                [
+                    stage,
+                    per_voxel,
+                    f"{fit['ns_per_voxel']:.2f}",
+                    f"{fit['intercept_ms']:.1f}",
+                    f"{fit['r2']:.3f}",
+                    f"{fit['loglog_exponent']:.2f}",
+                    "-" if local is None else f"{local:.2f}",
+                ]
+            )
+        fitted = ", ".join(f"{round(voxels[i] ** (1 / 3))}^3" for i in fit_at)
+        md.append(
+            _table(
+                [
+                    "stage",
+                    "ns/voxel at " + ", ".join(f"{round(v ** (1 / 3))}^3" for v in voxels),
+                    f"fit t = a + b N ({fitted}): b ns/voxel",
+                    "a ms",
+                    "R^2",
+                    "log-log exponent (same sizes)",
+                    "exponent between the two largest",
+                ],
+                rows,
+            )
+        )
+        md.append(
+            "\n\nAn exponent near 1 means linear in the voxel count. Clustering (AP on the n_bins x n_bins matrix) "
+            "does not depend on the voxel count; its time follows the number of AP iterations (and the damping "
+            "retries) of each volume.\n"
+        )
+    summary["scaling"] = scaling
+
+    # ---- scaling with n_bins
+    md.append("\n## Scaling with n_bins (phantom 128^3)\n")
+    rows = []
+    base = _by_name(everything, "phantom 128^3 int16")
+    for r in ([base] if base else []) + list(groups["bins"]):
+        if "error" in r:
+            rows.append([r["config"]["name"], r["error"], "", "", "", "", ""])
+            continue
+        med, conv = r["median_s"], r["clustering"]
+        rows.append(
+            [
+                r["config"].get("options", {}).get("n_bins", 256),
+                _fmt_s(med["similarity"]),
+                _fmt_s(med["clustering"]),
+                _fmt_s(med["pipeline"]),
+                f"{r['process_peak_mb']:.0f} MB",
+                r["n_classes"],
+                f"{'yes' if conv['converged'] else 'no'} ({conv['n_iter']} it)",
+            ]
+        )
+    md.append(
+        _table(
+            ["n_bins", "similarity", "clustering (AP)", "pipeline", "process peak", "AP classes", "AP converged"], rows
+        )
+    )
+    md.append(
+        '\n\nFor n_bins > 256 the run uses `unconverged="keep"` (one damping, 200 iterations) so the AP time is '
+        "one pass; the default `raise-damping` would add up to two more passes when AP does not converge.\n"
+    )
+
+    # ---- reference
+    md.append("\n## Fast similarity vs the explicit reference (phantom, 256 bins, all levels, same run)\n")
+    rows, ref_summary = [], []
+    for r in groups["reference"]:
+        if "error" in r:
+            rows.append([f"{r['config']['size']}^3", "-", r["error"], "-", "-", "-"])
+            ref_summary.append({"size": r["config"]["size"], "error": r["error"]})
+            continue
+        ratio = r["reference_median_s"] / r["fast_median_s"]
+        rows.append(
+            [
+                f"{r['config']['size']}^3",
+                _fmt_s(r["fast_median_s"]),
+                f"{_fmt_s(r['reference_median_s'])} ({len(r['reference_times'])} run(s))",
+                f"{ratio:,.0f}x",
+                f"{r['fast_peak_increase_mb']:.0f} / {r['reference_peak_increase_mb']:.0f} MB",
+                f"{r['max_abs_difference']:.1e}",
+            ]
+        )
+        ref_summary.append(
+            {
+                "size": r["config"]["size"],
+                "fast_s": r["fast_median_s"],
+                "reference_s": r["reference_median_s"],
+                "ratio": ratio,
+                "max_abs_difference": r["max_abs_difference"],
+            }
+        )
+    md.append(
+        _table(
+            ["size", "fast (median of 7)", "reference", "reference / fast", "peak mem fast / ref", "max abs diff"], rows
+        )
+    )
+    summary["reference"] = ref_summary
+
+    # ---- thesis
+    md.append("\n\n## Against the thesis (Table 4.1 / 4.2: 256^3 volumes, 8 octree levels)\n")
+    p256 = _by_name(everything, "phantom 256^3 int16")
+    thesis = {}
+    if p256:
+        sim9 = p256["median_s"]["similarity"]
+        sim8 = p256.get("similarity_levels", {}).get("median_s") or sim9
+        clus = p256["median_s"]["clustering"]
+        thesis = {
+            "similarity_8_levels_s": sim8,
+            "similarity_9_levels_s": sim9,
+            "clustering_s": clus,
+            "similarity_speedup": THESIS_SIMILARITY_S / sim8,
+            "classification_speedup": [t / clus for t in THESIS_CLASSIFICATION_S],
+        }
+        rows = [
+            ["similarity (8 levels)", "780 s (13 min)", _fmt_s(sim8), f"{THESIS_SIMILARITY_S / sim8:,.0f}x"],
+            ["similarity (all 9 levels)", "-", _fmt_s(sim9), f"{THESIS_SIMILARITY_S / sim9:,.0f}x"],
+            [
+                "classification (AP on 256 isovalues)",
+                "22-50 s",
+                _fmt_s(clus),
+                f"{THESIS_CLASSIFICATION_S[0] / clus:,.0f}x - {THESIS_CLASSIFICATION_S[1] / clus:,.0f}x",
+            ],
+        ]
+        md.append(_table(["stage", "thesis", "this run (phantom 256^3)", "ratio thesis / this"], rows))
+        md.append(
+            "\n\nDifferent machines and volumes: the ratio says how far the cost moved, not a controlled comparison.\n"
+        )
+    summary["thesis"] = thesis
+    summary["load_average"] = [r.get("loadavg_end") for r in everything]
+    md.append(
+        f"\n\nTotal benchmark wall time: {wall_s:.0f} s. Load average (1, 5, 15 min) at start: "
+        f"{', '.join(f'{v:.2f}' for v in machine['loadavg_at_start'])}; at the end of each case: "
+        + "; ".join(f"{r['config']['name']}: {r['loadavg_end'][0]:.2f}" for r in everything if r.get("loadavg_end"))
+        + ".\n"
+    )
+    summary["results"] = groups
+    return "\n".join(md) + "\n", summary
+
+
+def print_console(summary: dict, groups: dict[str, list[dict]]) -> None:
+    print("\nstage medians (warm) and peak RSS increase:")
+    header = f"{'case':44s} " + " ".join(f"{s:>17s}" for s in (*STAGES, "pipeline"))
+    print(header)
+    for group in groups.values():
+        for r in group:
+            if r["config"]["kind"] != "pipeline":
+                continue
+            if "error" in r:
+                print(f"{r['config']['name']:44s} ERROR {r['error']}")
+                continue
+            cells = []
+            for stage in (*STAGES, "pipeline"):
+                t = r["median_s"].get(stage)
+                m = r["peak_increase_mb"].get(stage)
+                cells.append(f"{_fmt_s(t):>9s}/{_fmt_mb(m):>7s}" if t is not None else f"{'-':>17s}")
+            print(f"{r['config']['name']:44s} " + " ".join(cells))
+    print("\nreference vs fast similarity:")
+    for ref in summary["reference"]:
+        if "error" in ref:
+            print(f"  {ref['size']}^3: {ref['error']}")
+        else:
+            print(
+                f"  {ref['size']}^3: fast {_fmt_s(ref['fast_s'])}, reference {_fmt_s(ref['reference_s'])}, "
+                f"ratio {ref['ratio']:,.0f}x, max diff {ref['max_abs_difference']:.1e}"
+            )
+    if summary["thesis"]:
+        t = summary["thesis"]
+        print(
+            f"\nthesis: similarity 780 s vs {_fmt_s(t['similarity_8_levels_s'])} (8 levels) = "
+            f"{t['similarity_speedup']:,.0f}x; classification 22-50 s vs {_fmt_s(t['clustering_s'])} = "
+            f"{t['classification_speedup'][0]:,.0f}x-{t['classification_speedup'][1]:,.0f}x"
+        )
+    print("\ntargets:")
+    for v in summary["targets"]:
+        print(f"  {v['verdict']}: {v['target']} {v['limit']}: {v['measured']}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="short run; writes bench-quick.md/.json")
+    parser.add_argument("--out", type=Path, default=RESULTS, help="results folder (default benchmarks/results)")
+    parser.add_argument("--only", default=None, help="comma-separated sections: sizes,real,targets,bins,reference")
+    parser.add_argument("--child", default=None, help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.child is not None:
+        _child_main(args.child)
+        return 0
+
+    started = time.perf_counter()
+    machine = machine_description()
+    groups = configurations(args.quick)
+    if args.only:
+        keep = set(args.only.split(","))
+        groups = {k: (v if k in keep else []) for k, v in groups.items()}
+    results: dict[str, list[dict]] = {k: [] for k in groups}
+    log: Callable[[str], None] = lambda text: print(text, flush=True)  # noqa: E731
+    for section, cfgs in groups.items():
+        for cfg in cfgs:
+            timeout = 240.0 if cfg["kind"] == "reference" else 600.0
+            log(f"[{time.perf_counter() - started:6.0f} s] {cfg['name']} ...")
+            result = run_child(cfg, timeout)
+            if "error" in result:
+                log(f"    ERROR: {result['error']}")
+            elif cfg["kind"] == "reference":
+                log(f"    fast {_fmt_s(result['fast_median_s'])}, reference {_fmt_s(result['reference_median_s'])}")
+            else:
+                log(
+                    f"    pipeline {_fmt_s(result['median_s']['pipeline'])}, "
+                    f"process peak {result['process_peak_mb']:.0f} MB, {result['n_classes']} classes"
+                )
+            results[section].append(result)
+            if cfg["kind"] == "reference" and "error" in result:
+                break  # larger sizes would take even longer
+    wall = time.perf_counter() - started
+    markdown, summary = build_report(machine, results, args.quick, wall)
+    print_console(summary, results)
+    args.out.mkdir(parents=True, exist_ok=True)
+    stem = "bench-quick" if args.quick else "bench"
+    (args.out / f"{stem}.md").write_text(markdown)
+    (args.out / f"{stem}.json").write_text(json.dumps(summary, indent=1, default=float))
+    print(f"\nwrote {args.out / (stem + '.md')} and {stem}.json in {wall:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
