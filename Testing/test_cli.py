@@ -14,6 +14,8 @@ import pytest
 
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 
+from test_volume_io import _rotation
+
 from IsoSimilarityTFLib import __version__, cli, report
 from IsoSimilarityTFLib.design import TransferFunctionDesign
 from IsoSimilarityTFLib.phantom import head_phantom
@@ -34,14 +36,6 @@ CLASS_KEYS = {
 DATA_FILES = ("similarity.npy", "similarity.png", "classes.json", "transfer_function.vp.json", "transfer_function.vp")
 RENDER_FILES = ("render.png", "classes.png", "scene/scene.mrml")
 RENDER_SIZE = 96  # render.png side in the tests (class tiles are half of it): small keeps CPU ray casting fast
-
-
-def _rotation(degrees: float, axis: int) -> np.ndarray:
-    c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
-    a, b = [n for n in range(3) if n != axis]
-    rotation = np.eye(3)
-    rotation[a, a], rotation[a, b], rotation[b, a], rotation[b, b] = c, -s, s, c
-    return rotation
 
 
 def _small_volume(size: int = 32) -> Volume:

@@ -2,7 +2,8 @@
 
 import json
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Callable, Optional, Union
 
@@ -267,65 +268,66 @@ def design_transfer_function(
             progress(stage, fraction, message)
 
     timings: dict[str, float] = {}
-    start = time.perf_counter()
-    report("quantize", 0.0, "quantizing")
-    if isinstance(values, Quantization):
-        quantized = values
-        opts["n_bins"], opts["value_range"] = quantized.n_bins, list(quantized.value_range)
-    else:
-        quantized = quantize(values, opts["n_bins"], opts["value_range"])
-    timings["quantize"] = time.perf_counter() - start
 
-    start = time.perf_counter()
-    report("similarity", 0.0, "measuring isosurface similarity")
-    similarity = isovalue_similarity(
-        quantized.bins,
-        quantized.n_bins,
-        crossing=opts["crossing"],
-        normalization=opts["normalization"],
-        levels=opts["levels"],
-        progress=lambda fraction, message: report("similarity", fraction, message),
-    )
-    timings["similarity"] = time.perf_counter() - start
+    @contextmanager
+    def stage(name: str, message: str) -> Iterator[None]:
+        report(name, 0.0, message)
+        start = time.perf_counter()
+        yield
+        timings[name] = time.perf_counter() - start
 
-    start = time.perf_counter()
-    report("clustering", 0.0, "affinity propagation")
-    dampings = [opts["damping"]]
-    if opts["unconverged"] == "raise-damping":
-        dampings += [d for d in FALLBACK_DAMPINGS if d > opts["damping"]]
-    for damping in dampings:
-        slowdown = (1.0 - opts["damping"]) / (1.0 - damping)
-        iterations = {
-            "max_iter": int(round(opts["max_iter"] * slowdown)),
-            "convergence_iter": int(round(opts["convergence_iter"] * slowdown)),
-        }
-        clusters = cluster_isovalues(
-            similarity.matrix,
-            preference=opts["preference"],
-            damping=damping,
-            empty_isovalues=similarity.empty_isovalues,
-            **iterations,
+    with stage("quantize", "quantizing"):
+        if isinstance(values, Quantization):
+            quantized = values
+            opts["n_bins"], opts["value_range"] = quantized.n_bins, list(quantized.value_range)
+        else:
+            quantized = quantize(values, opts["n_bins"], opts["value_range"])
+
+    with stage("similarity", "measuring isosurface similarity"):
+        similarity = isovalue_similarity(
+            quantized.bins,
+            quantized.n_bins,
+            crossing=opts["crossing"],
+            normalization=opts["normalization"],
+            levels=opts["levels"],
+            progress=lambda fraction, message: report("similarity", fraction, message),
         )
-        if clusters.converged:
-            break
-    if not clusters.converged and opts["unconverged"] != "keep":
-        raise ClusteringError(
-            f"affinity propagation did not converge in {opts['max_iter']} iterations with damping "
-            f"{', '.join(f'{d:g}' for d in dampings)}; raise max_iter (e.g. 1000) or damping (e.g. 0.95)"
-        )
-    timings["clustering"] = time.perf_counter() - start
 
-    start = time.perf_counter()
-    report("classes", 0.0, "ranking classes")
-    classes = build_classes(
-        clusters.labels,
-        clusters.exemplars,
-        quantized.voxel_counts(),
-        quantized.edges,
-        background=opts["background"],
-        max_classes=opts["max_classes"],
-        bins=quantized.bins,
-    )
+    with stage("clustering", "affinity propagation"):
+        dampings = [opts["damping"]]
+        if opts["unconverged"] == "raise-damping":
+            dampings += [d for d in FALLBACK_DAMPINGS if d > opts["damping"]]
+        for damping in dampings:
+            slowdown = (1.0 - opts["damping"]) / (1.0 - damping)
+            iterations = {
+                "max_iter": int(round(opts["max_iter"] * slowdown)),
+                "convergence_iter": int(round(opts["convergence_iter"] * slowdown)),
+            }
+            clusters = cluster_isovalues(
+                similarity.matrix,
+                preference=opts["preference"],
+                damping=damping,
+                empty_isovalues=similarity.empty_isovalues,
+                **iterations,
+            )
+            if clusters.converged:
+                break
+        if not clusters.converged and opts["unconverged"] != "keep":
+            raise ClusteringError(
+                f"affinity propagation did not converge in {opts['max_iter']} iterations with damping "
+                f"{', '.join(f'{d:g}' for d in dampings)}; raise max_iter (e.g. 1000) or damping (e.g. 0.95)"
+            )
+
+    with stage("classes", "ranking classes"):
+        classes = build_classes(
+            clusters.labels,
+            clusters.exemplars,
+            quantized.voxel_counts(),
+            quantized.edges,
+            background=opts["background"],
+            max_classes=opts["max_classes"],
+            bins=quantized.bins,
+        )
     design = TransferFunctionDesign(
         value_range=quantized.value_range,
         n_bins=quantized.n_bins,
@@ -344,7 +346,6 @@ def design_transfer_function(
         spacing=spacing,
         similarity=similarity.matrix,
     )
-    timings["classes"] = time.perf_counter() - start
     design.timings_s = timings
     report("classes", 1.0, f"{clusters.n_classes} classes")
     return design

@@ -542,11 +542,29 @@ def _nrrd_itemsize(type_name: str) -> int:
     return 0
 
 
-def _write_nrrd(volume: Volume, path: Path) -> None:
+def _typed_values(volume: Volume, path: Path, types: dict, format_name: str) -> tuple[np.ndarray, str]:
+    """The voxels in little-endian order and the format's name of their type (ValueError when it has none)."""
     values = _little_endian(volume.values)
-    type_name = _NRRD_TYPES.get(values.dtype.name)
+    type_name = types.get(values.dtype.name)
     if type_name is None:
-        raise ValueError(f"Cannot write '{path}': dtype {values.dtype} has no NRRD type")
+        raise ValueError(f"Cannot write '{path}': dtype {values.dtype} has no {format_name} type")
+    return values, type_name
+
+
+def _write_header_and_data(
+    path: Path, header: bytes, values: np.ndarray, data_name: str, *, detached: bool, compress: bool = False
+) -> None:
+    """Write a header followed by the raw voxels, or the header alone with the voxels in ``data_name`` beside it."""
+    raw = np.ascontiguousarray(values).tobytes()
+    if detached:
+        path.write_bytes(header)
+        (path.parent / data_name).write_bytes(raw)
+    else:
+        path.write_bytes(header + (gzip.compress(raw, compresslevel=1) if compress else raw))
+
+
+def _write_nrrd(volume: Volume, path: Path) -> None:
+    values, type_name = _typed_values(volume, path, _NRRD_TYPES, "NRRD")
     axes_lps = (volume.directions * np.asarray(volume.spacing)[None, :]) * _LPS_TO_RAS[:, None]
     origin_lps = np.asarray(volume.origin) * _LPS_TO_RAS
     k, j, i = values.shape
@@ -569,12 +587,7 @@ def _write_nrrd(volume: Volume, path: Path) -> None:
     if detached:
         lines.append(f"data file: {data_name}")
     header = ("\n".join(lines) + "\n\n").encode("ascii")
-    raw = np.ascontiguousarray(values).tobytes()
-    if detached:
-        path.write_bytes(header)
-        (path.parent / data_name).write_bytes(raw)
-    else:
-        path.write_bytes(header + gzip.compress(raw, compresslevel=1))
+    _write_header_and_data(path, header, values, data_name, detached=detached, compress=True)
 
 
 def _little_endian(values: np.ndarray) -> np.ndarray:
@@ -681,10 +694,7 @@ def _read_meta(path: Path) -> Volume:
 
 
 def _write_meta(volume: Volume, path: Path) -> None:
-    values = _little_endian(volume.values)
-    element_type = _META_TYPES.get(values.dtype.name)
-    if element_type is None:
-        raise ValueError(f"Cannot write '{path}': dtype {values.dtype} has no MetaImage type")
+    values, element_type = _typed_values(volume, path, _META_TYPES, "MetaImage")
     directions_lps = volume.directions * _LPS_TO_RAS[:, None]
     origin_lps = np.asarray(volume.origin) * _LPS_TO_RAS
     k, j, i = values.shape
@@ -706,12 +716,7 @@ def _write_meta(volume: Volume, path: Path) -> None:
         f"ElementDataFile = {data_name if detached else 'LOCAL'}",
     ]
     header = ("\n".join(lines) + "\n").encode("ascii")
-    raw = np.ascontiguousarray(values).tobytes()
-    if detached:
-        path.write_bytes(header)
-        (path.parent / data_name).write_bytes(raw)
-    else:
-        path.write_bytes(header + raw)
+    _write_header_and_data(path, header, values, data_name, detached=detached)
 
 
 # ---------------------------------------------------------------------------------------------------------------
