@@ -11,6 +11,7 @@ from .cells import octree_levels, unit_cell_intervals
 from .classes import IsovalueClass
 from .clustering import ClusteringError, ClusteringResult, cluster_isovalues
 from .design import TransferFunctionDesign, design_transfer_function
+from .memory import InsufficientMemoryError
 from .quantize import Quantization, quantize
 from .similarity import IsovalueSimilarity, isovalue_similarity, similarity_matrix
 from .transfer_function import TransferFunctionFileError, TransferFunctionPoints, read_vp, read_vp_json
@@ -20,6 +21,7 @@ __version__ = "0.1.0"
 __all__ = [
     "ClusteringError",
     "ClusteringResult",
+    "InsufficientMemoryError",
     "IsovalueClass",
     "IsovalueSimilarity",
     "Quantization",

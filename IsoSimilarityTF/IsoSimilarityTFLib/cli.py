@@ -18,6 +18,7 @@ from . import __version__
 from .classes import BACKGROUND_RULES
 from .clustering import PREFERENCES, ClusteringError
 from .design import DEFAULT_OPTIONS, UNCONVERGED_RULES
+from .memory import InsufficientMemoryError
 from .rendering import VIEW_DIRECTIONS
 from .report import (
     DEFAULT_PHANTOM_SIZE,
@@ -304,6 +305,8 @@ def _exit_status(error: BaseException) -> int:
 
 
 def _message(error: BaseException) -> str:
+    if isinstance(error, InsufficientMemoryError):
+        return str(error)
     if isinstance(error, MemoryError):
         return "out of memory (try a smaller volume or fewer --bins)"
     if isinstance(error, (ClusteringError, OutputError, RenderError, UsageError, VolumeReadError)):

@@ -11,6 +11,7 @@ import numpy as np
 
 from .classes import IsovalueClass, build_classes, default_colors, default_opacities
 from .clustering import ClusteringError, cluster_isovalues
+from .memory import check_memory
 from .quantize import Quantization, quantize
 from .similarity import isovalue_similarity
 from .transfer_function import (
@@ -254,6 +255,7 @@ def design_transfer_function(
 
     Raises:
         ValueError: bad volume or option. ClusteringError: affinity propagation gave no usable grouping.
+        InsufficientMemoryError: the volume would not fit in the memory available.
     """
     unknown = sorted(set(options) - set(DEFAULT_OPTIONS))
     if unknown:
@@ -276,6 +278,7 @@ def design_transfer_function(
         yield
         timings[name] = time.perf_counter() - start
 
+    check_memory(np.shape(values.bins if isinstance(values, Quantization) else values), opts["n_bins"])
     with stage("quantize", "quantizing"):
         if isinstance(values, Quantization):
             quantized = values

@@ -1,0 +1,64 @@
+"""Refuse a volume that would not fit in memory, before allocating it.
+
+Linux over-commits memory: an oversized array is granted, and the process is killed when its pages are touched,
+taking the user's Slicer session with it. A clear error up front is better.
+"""
+
+import os
+from typing import Optional
+
+# Bytes per voxel at the peak of the similarity stage, per byte of bin index: the quantized volume, the unit-cell
+# minima and maxima, and the coarser octree levels reduced from them (1/7 of the unit cells).
+_BYTES_PER_VOXEL = 1 + 2 + 2 / 7
+# Float64 matrices of n_bins x n_bins alive at once while aggregating the levels.
+_MATRICES = 6
+# Slabs, chunks and libraries.
+_OVERHEAD_BYTES = 256 << 20
+
+
+class InsufficientMemoryError(MemoryError):
+    """The volume (or the number of bins) needs more memory than the machine has available."""
+
+
+def available_memory_bytes() -> Optional[int]:
+    """Memory available to a new allocation without swapping, in bytes; None where the system does not say."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as meminfo:
+            for line in meminfo:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, OSError, ValueError):
+        return None
+
+
+def design_memory_bytes(shape: tuple, n_bins: int) -> int:
+    """Estimated peak memory of designing a transfer function, in bytes, for a volume of ``shape`` voxels.
+
+    Counts what the pipeline allocates beyond the input volume itself.
+    """
+    voxels = 1
+    for n in shape:
+        voxels *= int(n)
+    index_bytes = 1 if n_bins <= 256 else 2
+    return int(voxels * index_bytes * _BYTES_PER_VOXEL + _MATRICES * 8 * n_bins * n_bins + _OVERHEAD_BYTES)
+
+
+def check_memory(shape: tuple, n_bins: int) -> None:
+    """Raise :class:`InsufficientMemoryError` when the design would need more memory than is available.
+
+    A bad ``n_bins`` is let through: the step that uses it says what is wrong with it.
+    """
+    if isinstance(n_bins, bool) or not isinstance(n_bins, int):
+        return
+    available = available_memory_bytes()
+    needed = design_memory_bytes(shape, n_bins)
+    if available is not None and needed > available:
+        dims = " x ".join(str(int(n)) for n in shape)
+        raise InsufficientMemoryError(
+            f"a volume of {dims} voxels with {n_bins} bins needs about {needed / 2**30:.1f} GB of memory and "
+            f"{available / 2**30:.1f} GB are available: crop or downsample the volume, or use fewer bins"
+        )
