@@ -7,6 +7,8 @@ taking the user's Slicer session with it. A clear error up front is better.
 import os
 from typing import Optional
 
+from .quantize import MAX_BINS
+
 # Bytes per voxel at the peak of the similarity stage, per byte of bin index: the quantized volume, the unit-cell
 # minima and maxima, and the coarser octree levels reduced from them (1/7 of the unit cells).
 _BYTES_PER_VOXEL = 1 + 2 + 2 / 7
@@ -52,7 +54,7 @@ def check_memory(shape: tuple, n_bins: int) -> None:
 
     A bad ``n_bins`` is let through: the step that uses it says what is wrong with it.
     """
-    if isinstance(n_bins, bool) or not isinstance(n_bins, int):
+    if isinstance(n_bins, bool) or not isinstance(n_bins, int) or not 2 <= n_bins <= MAX_BINS:
         return
     available = available_memory_bytes()
     needed = design_memory_bytes(shape, n_bins)
