@@ -579,4 +579,3 @@ def test_class_grid_layout_and_labels() -> None:
     assert report.format_ranges([[0.0, 1.0], [2.0, 3.0]], 1) == "0.0 .. 1.0, 2.0 .. 3.0"
     assert report.value_decimals((-1024.0, 3071.0), 256) == 0 and report.value_decimals((0.0, 1.0), 256) == 3
     assert report.color_hex([1.0, 0.5, 0.0]) == "#ff8000"
-    assert report.downscale(np.ones((8, 6, 3), np.uint8) * 9, 2).shape == (4, 3, 3)

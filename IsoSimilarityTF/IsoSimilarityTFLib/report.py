@@ -316,15 +316,6 @@ def class_grid(
     return grid
 
 
-def downscale(rgb: np.ndarray, factor: int) -> np.ndarray:
-    """Shrink an RGB picture by a whole factor (mean of each ``factor`` x ``factor`` block; edges cropped)."""
-    if factor <= 1:
-        return rgb
-    height, width = (rgb.shape[0] // factor) * factor, (rgb.shape[1] // factor) * factor
-    blocks = rgb[:height, :width].reshape(height // factor, factor, width // factor, factor, -1).astype(np.float64)
-    return np.round(blocks.mean(axis=(1, 3))).astype(np.uint8)
-
-
 def read_png(path: PathLike) -> np.ndarray:
     """Read a PNG written by :func:`write_png` as ``(height, width, 3)`` uint8, row 0 at the top."""
     from vtkmodules.util.numpy_support import vtk_to_numpy
