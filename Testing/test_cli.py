@@ -38,6 +38,22 @@ RENDER_FILES = ("render.png", "classes.png", "scene/scene.mrml")
 RENDER_SIZE = 96  # render.png side in the tests (class tiles are half of it): small keeps CPU ray casting fast
 
 
+def read_png(path: Path) -> np.ndarray:
+    """Read a PNG written by the tool as ``(height, width, 3)`` uint8, row 0 at the top."""
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+    from vtkmodules.vtkIOImage import vtkPNGReader
+
+    reader = vtkPNGReader()
+    if not reader.CanReadFile(str(path)):
+        raise OSError(f"not a PNG file: {path}")
+    reader.SetFileName(str(path))
+    reader.Update()
+    image = reader.GetOutput()
+    width, height, _ = image.GetDimensions()
+    pixels = vtk_to_numpy(image.GetPointData().GetScalars()).reshape(height, width, -1)[::-1]
+    return np.ascontiguousarray(pixels[..., :3])
+
+
 def _small_volume(size: int = 32) -> Volume:
     """A small head phantom with anisotropic spacing and an oblique, left-handed orientation."""
     directions = _rotation(20.0, 2) @ _rotation(-10.0, 0)
@@ -143,16 +159,16 @@ def test_outputs_exist_and_follow_the_schema(rendered: Path) -> None:
 
 
 def test_pictures_are_readable_and_not_blank(rendered: Path) -> None:
-    similarity = report.read_png(rendered / "similarity.png")
+    similarity = read_png(rendered / "similarity.png")
     assert similarity.shape[0] == similarity.shape[1] >= 256
     assert similarity.std() > 10
     if not slicer_core_available():
         pytest.skip("slicer-core is not installed: no renders")
-    picture = report.read_png(rendered / "render.png")
+    picture = read_png(rendered / "render.png")
     assert picture.shape == (RENDER_SIZE, RENDER_SIZE, 3)
     foreground = np.count_nonzero(picture.max(axis=2) > 20)
     assert 0.05 * picture.shape[0] * picture.shape[1] < foreground < 0.9 * picture.shape[0] * picture.shape[1]
-    grid = report.read_png(rendered / "classes.png")
+    grid = read_png(rendered / "classes.png")
     shown = [c for c in _load(rendered)["classes"] if c["visible"]]
     tile = RENDER_SIZE // 2
     assert grid.shape[1] >= 2 * tile and grid.shape[0] >= tile

@@ -316,22 +316,6 @@ def class_grid(
     return grid
 
 
-def read_png(path: PathLike) -> np.ndarray:
-    """Read a PNG written by :func:`write_png` as ``(height, width, 3)`` uint8, row 0 at the top."""
-    from vtkmodules.util.numpy_support import vtk_to_numpy
-    from vtkmodules.vtkIOImage import vtkPNGReader
-
-    reader = vtkPNGReader()
-    if not reader.CanReadFile(os.fspath(path)):
-        raise OSError(f"not a PNG file: {path}")
-    reader.SetFileName(os.fspath(path))
-    reader.Update()
-    image = reader.GetOutput()
-    width, height, _ = image.GetDimensions()
-    pixels = vtk_to_numpy(image.GetPointData().GetScalars()).reshape(height, width, -1)[::-1]
-    return np.ascontiguousarray(pixels[..., :3])
-
-
 # ---------------------------------------------------------------------------------------------------------------
 # The run
 # ---------------------------------------------------------------------------------------------------------------

@@ -367,12 +367,6 @@ def _as_ras_geometry(
     )
 
 
-def _read_text_header(path: Path, limit: int = 1 << 20) -> str:
-    with open(path, "rb") as handle:
-        head = handle.read(limit)
-    return head.decode("latin-1")
-
-
 def _fmt(value: float) -> str:
     return repr(float(value))
 
