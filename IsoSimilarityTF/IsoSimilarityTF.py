@@ -740,8 +740,7 @@ class IsoSimilarityTFLogic(ScriptedLoadableModuleLogic):
             return None
         from IsoSimilarityTFLib.pictures import similarity_image
 
-        colors = np.array([c.color for c in design.classes], dtype=np.float64)
-        return similarity_image(design.similarity, design.labels, colors, size=size)
+        return similarity_image(design.similarity, design.labels, design.class_colors, size=size)
 
     @staticmethod
     def timingsText(design) -> str:

@@ -143,9 +143,14 @@ class TransferFunctionDesign:
             c.color, c.opacity = color, opacity
 
     # Transfer function ---------------------------------------------------------------------------------------------
+    @property
+    def class_colors(self) -> np.ndarray:
+        """``(n_classes, 3)`` RGB in 0..1, in class id order."""
+        return np.array([c.color for c in self.classes], dtype=np.float64)
+
     def bin_looks(self) -> tuple[np.ndarray, np.ndarray]:
         """``(n_bins, 3)`` colour and ``(n_bins,)`` opacity per bin, 0 opacity where the class is not shown."""
-        colors = np.array([c.color for c in self.classes], dtype=np.float64)
+        colors = self.class_colors
         opacities = np.array([c.opacity if self.is_shown(c.id) else 0.0 for c in self.classes], dtype=np.float64)
         return colors[self.labels], opacities[self.labels]
 

@@ -379,8 +379,7 @@ def write_data_files(result: RunResult) -> None:
     paths = {role: outdir / OUTPUT_FILES[role] for role in ("similarity_npy", "similarity_png", "vp_json", "vp")}
     try:
         np.save(paths["similarity_npy"], np.asarray(design.similarity, dtype=np.float64))
-        colors = np.array([c.color for c in design.classes], dtype=np.float64)
-        write_png(similarity_image(design.similarity, design.labels, colors), paths["similarity_png"])
+        write_png(similarity_image(design.similarity, design.labels, design.class_colors), paths["similarity_png"])
         design.write_vp_json(paths["vp_json"])
         design.write_vp(paths["vp"])
     except OSError as error:
