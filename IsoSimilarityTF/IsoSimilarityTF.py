@@ -26,6 +26,8 @@ from slicer.ScriptedLoadableModule import (
 )
 from slicer.util import VTKObservationMixin
 
+from IsoSimilarityTFLib.options import OPTIONS
+
 #
 # IsoSimilarityTF
 #
@@ -71,6 +73,21 @@ class IsoSimilarityTFCancelled(Exception):
 # IsoSimilarityTFParameterNode
 #
 
+# The engine options' ranges, choices and defaults come from the one options table of the library.
+
+
+def _withinRange(option: str, minimum: Optional[float] = None) -> WithinRange:
+    entry = OPTIONS[option]
+    return WithinRange(entry.minimum if minimum is None else minimum, entry.maximum)
+
+
+def _choice(option: str, *extra: str) -> Choice:
+    return Choice([*OPTIONS[option].choices, *extra])
+
+
+def _default(option: str):
+    return OPTIONS[option].default
+
 
 @parameterNodeWrapper
 class IsoSimilarityTFParameterNode:
@@ -91,18 +108,18 @@ class IsoSimilarityTFParameterNode:
     """
 
     inputVolume: vtkMRMLScalarVolumeNode
-    bins: Annotated[int, WithinRange(2, 4096)] = 256
-    levels: Annotated[int, WithinRange(0, 32)] = 0
-    crossing: Annotated[str, Choice(["inclusive", "strict"])] = "inclusive"
-    normalization: Annotated[str, Choice(["thesis", "ma-entezari"])] = "thesis"
-    preference: Annotated[str, Choice(["median", "minimum", "number"])] = "median"
+    bins: Annotated[int, _withinRange("n_bins")] = _default("n_bins")
+    levels: Annotated[int, _withinRange("levels", minimum=0)] = 0  # 0: all levels (None in the engine)
+    crossing: Annotated[str, _choice("crossing")] = _default("crossing")
+    normalization: Annotated[str, _choice("normalization")] = _default("normalization")
+    preference: Annotated[str, _choice("preference", "number")] = _default("preference")
     preferenceValue: Annotated[float, WithinRange(-100.0, 0.0)] = -1.0
-    damping: Annotated[float, WithinRange(0.5, 0.99)] = 0.5
-    maxIterations: Annotated[int, WithinRange(1, 100000)] = 200
-    convergenceIterations: Annotated[int, WithinRange(1, 10000)] = 15
-    maxClasses: Annotated[int, WithinRange(0, 1000)] = 15
-    background: Annotated[str, Choice(["largest", "lowest", "none"])] = "largest"
-    unconverged: Annotated[str, Choice(["raise-damping", "error", "keep"])] = "raise-damping"
+    damping: Annotated[float, _withinRange("damping")] = _default("damping")
+    maxIterations: Annotated[int, _withinRange("max_iter")] = _default("max_iter")
+    convergenceIterations: Annotated[int, _withinRange("convergence_iter")] = _default("convergence_iter")
+    maxClasses: Annotated[int, _withinRange("max_classes")] = _default("max_classes")
+    background: Annotated[str, _choice("background")] = _default("background")
+    unconverged: Annotated[str, _choice("unconverged")] = _default("unconverged")
 
 
 #
@@ -616,7 +633,7 @@ class IsoSimilarityTFLogic(ScriptedLoadableModuleLogic):
 
         Args:
             volumeNode: a ``vtkMRMLScalarVolumeNode``.
-            options: ``design_transfer_function`` keywords (see ``IsoSimilarityTFLib.design.DEFAULT_OPTIONS``).
+            options: ``design_transfer_function`` keywords (see ``IsoSimilarityTFLib.options.OPTIONS``).
             progress: ``progress(stage, fraction, message)``; raising from it cancels (nothing is changed then).
 
         Returns:
@@ -843,7 +860,7 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
         logic = IsoSimilarityTFLogic()
         parameterNode = logic.getParameterNode()
         options = logic.designOptions(parameterNode)
-        from IsoSimilarityTFLib.design import DEFAULT_OPTIONS
+        from IsoSimilarityTFLib.options import DEFAULT_OPTIONS
 
         self.assertTrue(set(options) <= set(DEFAULT_OPTIONS))
         for key in ("n_bins", "crossing", "normalization", "preference", "damping", "max_iter", "convergence_iter"):

@@ -1,4 +1,4 @@
-"""Tests of the ``isosimtf`` command (IsoSimilarityTFLib.cli) and its output folder (IsoSimilarityTFLib.report)."""
+"""Tests of the ``isosimtf`` command (isosimtf.cli) and its output folder (isosimtf.run, isosimtf.outputs)."""
 
 from __future__ import annotations
 
@@ -16,13 +16,17 @@ os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 
 from test_volume_io import _rotation
 
-from IsoSimilarityTFLib import __version__, cli, report
+import IsoSimilarityTFLib
+import isosimtf
+from IsoSimilarityTFLib import __version__
 from IsoSimilarityTFLib.design import TransferFunctionDesign
-from IsoSimilarityTFLib.phantom import head_phantom
-from IsoSimilarityTFLib.rendering import slicer_core_available
-from IsoSimilarityTFLib.volume_io import Volume, write_volume
+from isosimtf import cli, console, figures, formatting, run
+from isosimtf.phantom import head_phantom
+from isosimtf.rendering import slicer_core_available
+from isosimtf.volume_io import Volume, write_volume
 
-LIB_DIR = Path(report.__file__).resolve().parents[1]
+# The folders that hold the two packages, for a subprocess that runs without the editable install.
+PACKAGE_DIRS = [Path(package.__file__).resolve().parents[1] for package in (IsoSimilarityTFLib, isosimtf)]
 
 needs_slicer = pytest.mark.skipif(
     not slicer_core_available(), reason="slicer-core (Slicer's Qt-free MRML libraries) is not installed"
@@ -130,7 +134,7 @@ def test_outputs_exist_and_follow_the_schema(rendered: Path) -> None:
     assert {"n_iter", "converged", "n_classes"} <= set(document["clustering"])
     assert document["clustering"]["converged"] is True
     assert document["clustering"]["n_classes"] == len(document["classes"]) >= 2
-    stages = {"load", "quantize", "similarity", "clustering", "classes", "write", "total"}
+    stages = {"read", "quantize", "similarity", "clustering", "classes", "write", "total"}
     if slicer_core_available():
         stages.add("render")
     assert stages <= set(document["timings_s"])
@@ -172,7 +176,7 @@ def test_pictures_are_readable_and_not_blank(rendered: Path) -> None:
     shown = [c for c in _load(rendered)["classes"] if c["visible"]]
     tile = RENDER_SIZE // 2
     assert grid.shape[1] >= 2 * tile and grid.shape[0] >= tile
-    columns = (grid.shape[1] - report.GRID_GAP) // (tile + report.GRID_GAP)
+    columns = (grid.shape[1] - figures.GRID_GAP) // (tile + figures.GRID_GAP)
     assert columns * ((len(shown) + columns - 1) // columns) >= len(shown)
     assert np.count_nonzero(grid.max(axis=2) > 200) > 50  # label text
 
@@ -222,7 +226,7 @@ def _assert_same_world_volume(volume_node, expected: Volume) -> None:
 @needs_slicer
 def test_saved_scene_reloads_with_geometry_and_transfer_function(rendered: Path) -> None:
     from IsoSimilarityTFLib.mrml import design_of
-    from IsoSimilarityTFLib.rendering import HeadlessSlicer
+    from isosimtf.rendering import HeadlessSlicer
 
     document = _load(rendered)
     scene_file = rendered / "scene" / "scene.mrml"
@@ -337,20 +341,13 @@ def test_progress_lines_and_summary(tmp_path: Path, capfd) -> None:
     assert code == 0
     lines = err.splitlines()
     assert [line.split()[0] for line in lines] == [f"[{i}/6]" for i in range(1, 7)]
-    assert [line.split()[1] for line in lines] == [
-        "reading",
-        "quantizing",
-        "similarity",
-        "clustering",
-        "classes",
-        "writing",
-    ]
+    assert [line.split()[1] for line in lines] == list(run.STAGES[:-1])
     document = _load(tmp_path / "out")
     assert "rank" in out and "intensity range(s)" in out and "colour" in out
     assert "background" in out and "affinity propagation" in out
     assert f"{document['clustering']['n_iter']} iterations" in out
     for item in document["classes"]:
-        assert report.color_hex(item["color"]) in out
+        assert formatting.color_hex(item["color"]) in out
     assert "similarity" in out.split("time (s):")[1]
     assert str((tmp_path / "out").resolve()) in out
 
@@ -361,7 +358,7 @@ def test_progress_rewrites_the_line_on_a_terminal() -> None:
             return True
 
     stream = Terminal()
-    printer = report.ProgressPrinter(3, stream=stream)
+    printer = console.ProgressPrinter(3, stream=stream)
     printer.stage("similarity")
     printer.update("level 1 of 2")
     printer.update("level 2 of 2")
@@ -372,8 +369,8 @@ def test_progress_rewrites_the_line_on_a_terminal() -> None:
     assert "\r\x1b[K[1/3] similarity: level 2 of 2\n[2/3] clustering\n" in text
 
     quiet = Terminal()
-    printer = report.ProgressPrinter(3, stream=quiet, quiet=True)
-    printer.stage("reading")
+    printer = console.ProgressPrinter(3, stream=quiet, quiet=True)
+    printer.stage("read")
     printer.update("x")
     printer.finish()
     assert quiet.getvalue() == ""
@@ -525,7 +522,7 @@ def test_unconverged_affinity_propagation_is_a_processing_error(tmp_path: Path, 
 
 
 def test_without_slicer_core_rendering_is_skipped_with_a_warning(tmp_path: Path, capfd, monkeypatch) -> None:
-    monkeypatch.setattr(report, "slicer_core_available", lambda: False)
+    monkeypatch.setattr(run, "slicer_core_available", lambda: False)
     code, _, err = _run(["phantom", "-o", tmp_path / "out", "--phantom-size", 16, "-q"], capfd)
     assert code == 0
     assert err.startswith("isosimtf: warning: slicer-core is not installed") and len(err.splitlines()) == 1
@@ -539,13 +536,13 @@ def test_without_slicer_core_rendering_is_skipped_with_a_warning(tmp_path: Path,
 
 
 def _env() -> dict[str, str]:
-    return dict(os.environ, PYTHONPATH=os.pathsep.join([str(LIB_DIR), os.environ.get("PYTHONPATH", "")]))
+    return dict(os.environ, PYTHONPATH=os.pathsep.join([*map(str, PACKAGE_DIRS), os.environ.get("PYTHONPATH", "")]))
 
 
 def test_no_render_does_not_import_slicer_core(tmp_path: Path) -> None:
     code = (
         "import sys\n"
-        "from IsoSimilarityTFLib.cli import main\n"
+        "from isosimtf.cli import main\n"
         f"assert main(['phantom', '-o', {str(tmp_path / 'out')!r}, '--phantom-size', '16', '--no-render', '-q']) == 0\n"
         "loaded = sorted(m for m in sys.modules if m == 'slicer' or m.startswith(('slicer.', 'slicer_core')))\n"
         "assert not loaded, loaded\n"
@@ -563,7 +560,7 @@ def test_console_script(tmp_path: Path) -> None:
     result = subprocess.run(argv, capture_output=True, text=True, env=_env(), timeout=300)
     assert result.returncode == 0, result.stderr
     total = 7 if slicer_core_available() else 6
-    assert result.stderr.startswith(f"[1/{total}] reading phantom")
+    assert result.stderr.startswith(f"[1/{total}] read phantom")
     assert "Traceback" not in result.stderr
     assert "rank" in result.stdout and "output:" in result.stdout
     for name in DATA_FILES + (RENDER_FILES if slicer_core_available() else ()):
@@ -587,11 +584,11 @@ def test_console_script(tmp_path: Path) -> None:
 def test_class_grid_layout_and_labels() -> None:
     tiles = [np.zeros((40, 50, 3), np.uint8) for _ in range(5)]
     labels = [("#1  12.5% of voxels", "-10 .. 30")] * 5
-    grid = report.class_grid(tiles, labels, [[1.0, 0.0, 0.0]] * 5)
-    assert grid.dtype == np.uint8 and grid.shape[1] == 3 * 50 + 4 * report.GRID_GAP
+    grid = figures.class_grid(tiles, labels, [[1.0, 0.0, 0.0]] * 5)
+    assert grid.dtype == np.uint8 and grid.shape[1] == 3 * 50 + 4 * figures.GRID_GAP
     assert np.any(np.all(grid == (255, 0, 0), axis=2))  # colour swatch
     assert np.count_nonzero(grid.max(axis=2) > 150) > 40  # text
-    assert report.format_percent(0.00001) == "<0.1" and report.format_percent(0.5) == "50.0"
-    assert report.format_ranges([[0.0, 1.0], [2.0, 3.0]], 1) == "0.0 .. 1.0, 2.0 .. 3.0"
-    assert report.value_decimals((-1024.0, 3071.0), 256) == 0 and report.value_decimals((0.0, 1.0), 256) == 3
-    assert report.color_hex([1.0, 0.5, 0.0]) == "#ff8000"
+    assert formatting.format_percent(0.00001) == "<0.1" and formatting.format_percent(0.5) == "50.0"
+    assert formatting.format_ranges([[0.0, 1.0], [2.0, 3.0]], 1) == "0.0 .. 1.0, 2.0 .. 3.0"
+    assert formatting.value_decimals((-1024.0, 3071.0), 256) == 0 and formatting.value_decimals((0.0, 1.0), 256) == 3
+    assert formatting.color_hex([1.0, 0.5, 0.0]) == "#ff8000"

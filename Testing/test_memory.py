@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from IsoSimilarityTFLib import InsufficientMemoryError, cli, design_transfer_function, memory
+from IsoSimilarityTFLib import InsufficientMemoryError, design_transfer_function, memory
+from isosimtf import cli
 
 
 def test_estimate_grows_with_voxels_and_bins():

@@ -5,7 +5,7 @@ import pytest
 
 from IsoSimilarityTFLib import design_transfer_function
 from IsoSimilarityTFLib.mrml import DESIGN_ATTRIBUTE, apply_design, design_node_of, design_of, update_property_node
-from IsoSimilarityTFLib.phantom import head_phantom
+from isosimtf.phantom import head_phantom
 
 
 @pytest.fixture(scope="module")
@@ -105,7 +105,7 @@ def test_uint8_volume(slicer_app):
 
 
 def test_scene_saved_and_reopened_keeps_tf_and_design(tmp_path, slicer_app, phantom, phantom_design):
-    from IsoSimilarityTFLib.rendering import HeadlessSlicer
+    from isosimtf.rendering import HeadlessSlicer
 
     volume = add_phantom(slicer_app, phantom)
     design = type(phantom_design).from_json(phantom_design.to_json())

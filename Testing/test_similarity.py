@@ -4,10 +4,10 @@ import itertools
 
 import numpy as np
 import pytest
+from reference import reference_level_sizes, reference_similarity_matrix
 
 from IsoSimilarityTFLib import isovalue_similarity, octree_levels, similarity_matrix, unit_cell_intervals
 from IsoSimilarityTFLib.cells import hyper_cell_intervals
-from IsoSimilarityTFLib.reference import reference_level_sizes, reference_similarity_matrix
 from IsoSimilarityTFLib.similarity import joint_interval_histogram, overlap_counts
 
 RULES = list(itertools.product(("inclusive", "strict"), ("thesis", "ma-entezari")))

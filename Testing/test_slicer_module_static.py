@@ -11,11 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from IsoSimilarityTFLib.classes import BACKGROUND_RULES
-from IsoSimilarityTFLib.clustering import PREFERENCES
-from IsoSimilarityTFLib.design import DEFAULT_OPTIONS, UNCONVERGED_RULES
-from IsoSimilarityTFLib.quantize import MAX_BINS
-from IsoSimilarityTFLib.similarity import CROSSINGS, NORMALIZATIONS
+from IsoSimilarityTFLib.options import OPTIONS
 
 ROOT = Path(__file__).resolve().parents[1]
 MODULE_DIR = ROOT / "IsoSimilarityTF"
@@ -34,17 +30,12 @@ BINDABLE_WIDGETS = {
     "choice": {"QComboBox", "ctkComboBox"},
     "node": {"qMRMLNodeComboBox"},
 }
-# Values each Choice-annotated parameter must offer: what the engine accepts.
-ENGINE_CHOICES = {
-    "crossing": set(CROSSINGS),
-    "normalization": set(NORMALIZATIONS),
-    "preference": set(PREFERENCES) | {"number"},
-    "background": set(BACKGROUND_RULES),
-    "unconverged": set(UNCONVERGED_RULES),
-}
-# Parameter node field -> engine option, for the defaults that must agree.
-ENGINE_DEFAULTS = {
+# Choice parameters that offer more than the engine option's words ("number": the preference is preferenceValue).
+EXTRA_CHOICES = {"preference": {"number"}}
+# Parameter node field -> engine option whose table entry gives its range or choices and its default.
+ENGINE_OPTIONS = {
     "bins": "n_bins",
+    "levels": "levels",
     "crossing": "crossing",
     "normalization": "normalization",
     "preference": "preference",
@@ -99,8 +90,9 @@ def _annotation_kind(annotation: ast.expr) -> tuple:
         elements = annotation.slice.elts
         base = elements[0]
         for extra in elements[1:]:
-            if isinstance(extra, ast.Call) and getattr(extra.func, "id", None) == "Choice":
-                choices = ast.literal_eval(extra.args[0])
+            if isinstance(extra, ast.Call) and getattr(extra.func, "id", None) == "_choice":
+                option, *more = (ast.literal_eval(a) for a in extra.args)
+                choices = [*OPTIONS[option].choices, *more]
     name = getattr(base, "id", None)
     if choices is not None:
         return "choice", choices
@@ -218,24 +210,31 @@ def test_each_bound_widget_can_represent_its_parameter_type():
         assert widget.get("class") in BINDABLE_WIDGETS[kind], f"{name}: {widget.get('class')} cannot show a {kind}"
 
 
-def test_parameter_choices_are_what_the_engine_accepts():
+def _table_option(check: ast.expr) -> str:
+    """The options-table entry a field's check is made from: ``_withinRange("n_bins")`` -> ``"n_bins"``."""
+    assert isinstance(check, ast.Call) and getattr(check.func, "id", None) in ("_withinRange", "_choice"), (
+        f"{ast.unparse(check)} is not made from the options table"
+    )
+    return ast.literal_eval(check.args[0])
+
+
+def test_engine_parameters_take_their_checks_and_defaults_from_the_options_table():
     fields = _parameter_fields()
-    for name, expected in ENGINE_CHOICES.items():
+    for name, option in ENGINE_OPTIONS.items():
+        annotation, default = fields[name]
+        assert _table_option(annotation.slice.elts[1]) == option, name
+        if name == "levels":  # 0 stands for the engine's None (all levels)
+            assert ast.literal_eval(default) == 0 and OPTIONS[option].none_means
+        else:
+            assert ast.unparse(default) == f"_default({option!r})", name
+
+
+def test_choice_parameters_offer_the_engine_words():
+    fields = _parameter_fields()
+    for name, option in ENGINE_OPTIONS.items():
         kind, choices = _annotation_kind(fields[name][0])
-        assert kind == "choice"
-        assert set(choices) == expected, name
-
-
-def test_parameter_defaults_agree_with_the_engine():
-    fields = _parameter_fields()
-    for name, option in ENGINE_DEFAULTS.items():
-        default = fields[name][1]
-        assert default is not None, f"{name} has no default"
-        assert ast.literal_eval(default) == DEFAULT_OPTIONS[option], name
-    assert ast.literal_eval(fields["levels"][1]) == 0  # 0 = all levels = DEFAULT_OPTIONS["levels"] None
-    assert DEFAULT_OPTIONS["levels"] is None
-    bins_range = fields["bins"][0].slice.elts[1]
-    assert [ast.literal_eval(a) for a in bins_range.args] == [2, MAX_BINS]
+        if OPTIONS[option].choices:
+            assert kind == "choice" and set(choices) == set(OPTIONS[option].choices) | EXTRA_CHOICES.get(name, set())
 
 
 def test_every_ui_widget_the_module_uses_exists():

@@ -1,4 +1,4 @@
-"""Tests for IsoSimilarityTFLib.volume_io: format round trips, geometry, DICOM series, clear errors, real data."""
+"""Tests for isosimtf.volume_io: format round trips, geometry, DICOM series, clear errors, real data."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from IsoSimilarityTFLib.volume_io import Volume, VolumeReadError, read_volume, real_dataset_path, write_volume
+from isosimtf.volume_io import Volume, VolumeReadError, read_volume, real_dataset_path, write_volume
 
 SHAPE = (5, 7, 9)  # (k, j, i): odd and different along every axis
 SPACING = (0.7, 1.3, 2.1)  # anisotropic, mm along i, j, k

@@ -127,7 +127,7 @@ def _load_volume(cfg: dict) -> tuple[Any, tuple[float, float, float]]:
     """The configuration's volume ``[k, j, i]`` and spacing (x, y, z) mm."""
     import numpy as np
 
-    from IsoSimilarityTFLib.phantom import head_phantom
+    from isosimtf.phantom import head_phantom
 
     source = cfg["source"]
     if source == "phantom":
@@ -142,7 +142,7 @@ def _load_volume(cfg: dict) -> tuple[Any, tuple[float, float, float]]:
         size = cfg["size"]
         return np.random.default_rng(0).integers(0, 256, (size, size, size), dtype=np.uint8), (1.0, 1.0, 1.0)
     if source in ("head-ct", "brain-mri"):
-        from IsoSimilarityTFLib.volume_io import read_volume, real_dataset_path
+        from isosimtf.volume_io import read_volume, real_dataset_path
 
         path = real_dataset_path(source)
         if path is None:
@@ -274,7 +274,7 @@ def _child_pipeline(cfg: dict) -> dict:
         out["similarity_levels"] = {"levels": int(cfg["extra_levels"]), "median_s": _median(extra), "times": extra}
 
     if cfg.get("render"):
-        from IsoSimilarityTFLib.rendering import render_volume
+        from isosimtf.rendering import render_volume
 
         size = (512, 512)
         start = time.perf_counter()
@@ -304,10 +304,10 @@ def _child_pipeline(cfg: dict) -> dict:
 def _child_reference(cfg: dict) -> dict:
     """Fast similarity against the explicit incidence-matrix reference on one small phantom."""
     import numpy as np
+    from reference import reference_similarity_matrix
 
     from IsoSimilarityTFLib import quantize, similarity_matrix
-    from IsoSimilarityTFLib.phantom import head_phantom
-    from IsoSimilarityTFLib.reference import reference_similarity_matrix
+    from isosimtf.phantom import head_phantom
 
     meter = PeakMeter()
     phantom = head_phantom(cfg["size"], seed=0)

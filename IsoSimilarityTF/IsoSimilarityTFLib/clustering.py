@@ -7,11 +7,15 @@ from typing import Optional, Union
 
 import numpy as np
 
+from .errors import ClusteringError
+
 PREFERENCES = ("median", "minimum")
-
-
-class ClusteringError(RuntimeError):
-    """Affinity propagation could not give a usable grouping (no exemplar, or no convergence where it is required)."""
+# What the design does when affinity propagation does not converge (see design_transfer_function).
+UNCONVERGED_RULES = ("raise-damping", "error", "keep")
+# Frey & Dueck's remedy for oscillating messages: more damping, tried in turn when the requested damping fails.
+# Messages then move (1 - damping) of the way per iteration, so the iteration limits grow by the same factor;
+# otherwise a slow run of unchanged exemplars passes for convergence.
+FALLBACK_DAMPINGS = (0.7, 0.9)
 
 
 @dataclass(frozen=True)

@@ -10,8 +10,10 @@ from typing import Callable, Optional, Union
 import numpy as np
 
 from .classes import IsovalueClass, build_classes, default_colors, default_opacities
-from .clustering import ClusteringError, cluster_isovalues
+from .clustering import FALLBACK_DAMPINGS, cluster_isovalues
+from .errors import ClusteringError
 from .memory import check_memory
+from .options import DEFAULT_OPTIONS, check_options
 from .quantize import Quantization, quantize
 from .similarity import isovalue_similarity
 from .transfer_function import (
@@ -25,27 +27,7 @@ from .transfer_function import (
 
 StageProgress = Callable[[str, float, str], None]
 
-DEFAULT_OPTIONS = {
-    "n_bins": 256,
-    "value_range": None,
-    "crossing": "inclusive",
-    "normalization": "thesis",
-    "levels": None,
-    "preference": "median",
-    "damping": 0.5,
-    "max_iter": 200,
-    "convergence_iter": 15,
-    "max_classes": 15,
-    "background": "largest",
-    "unconverged": "raise-damping",
-}
-
-UNCONVERGED_RULES = ("raise-damping", "error", "keep")
-# Frey & Dueck's remedy for oscillating messages: more damping, tried in turn when the requested damping fails.
-# Messages then move (1 - damping) of the way per iteration, so the iteration limits grow by the same factor;
-# otherwise a slow run of unchanged exemplars passes for convergence.
-FALLBACK_DAMPINGS = (0.7, 0.9)
-
+#: The engine's stages, in order: the keys of ``timings_s`` and the ``stage`` given to ``progress``.
 STAGES = ("quantize", "similarity", "clustering", "classes")
 
 
@@ -253,7 +235,8 @@ def design_transfer_function(
         progress: called as ``progress(stage, fraction, message)``; raising from it cancels the design.
         **options: ``n_bins``, ``value_range``, ``crossing``, ``normalization``, ``levels``, ``preference``,
             ``damping``, ``max_iter``, ``convergence_iter``, ``max_classes``, ``background``, ``unconverged``
-            (see DEFAULT_OPTIONS). ``unconverged`` says what happens when affinity propagation does not converge:
+            (see :data:`.options.OPTIONS`). ``unconverged`` says what happens when affinity propagation does not
+            converge:
             ``"raise-damping"`` retries with damping 0.7 then 0.9 and iteration limits scaled by the slower message
             updates (what was used is reported in ``clustering``), ``"error"`` raises,
             ``"keep"`` keeps the last iteration's grouping (reported as not converged).
@@ -262,12 +245,7 @@ def design_transfer_function(
         ValueError: bad volume or option. ClusteringError: affinity propagation gave no usable grouping.
         InsufficientMemoryError: the volume would not fit in the memory available.
     """
-    unknown = sorted(set(options) - set(DEFAULT_OPTIONS))
-    if unknown:
-        raise TypeError(f"unknown option(s): {', '.join(unknown)}; known: {', '.join(DEFAULT_OPTIONS)}")
-    opts = {**DEFAULT_OPTIONS, **options}
-    if opts["unconverged"] not in UNCONVERGED_RULES:
-        raise ValueError(f"unconverged must be one of {UNCONVERGED_RULES}; got {opts['unconverged']!r}")
+    opts = check_options(options)
     spacing = _check_spacing(spacing)
 
     def report(stage: str, fraction: float, message: str) -> None:

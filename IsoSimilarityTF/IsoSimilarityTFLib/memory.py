@@ -7,6 +7,7 @@ taking the user's Slicer session with it. A clear error up front is better.
 import os
 from typing import Optional
 
+from .errors import InsufficientMemoryError
 from .quantize import MAX_BINS
 
 # Bytes per voxel at the peak of the similarity stage, per byte of bin index: the quantized volume, the unit-cell
@@ -16,10 +17,6 @@ _BYTES_PER_VOXEL = 1 + 2 + 2 / 7
 _MATRICES = 6
 # Slabs, chunks and libraries.
 _OVERHEAD_BYTES = 256 << 20
-
-
-class InsufficientMemoryError(MemoryError):
-    """The volume (or the number of bins) needs more memory than the machine has available."""
 
 
 def available_memory_bytes() -> Optional[int]:

@@ -38,6 +38,8 @@ from typing import Any, Callable, Union
 
 import numpy as np
 
+from IsoSimilarityTFLib.errors import VolumeReadError
+
 PathLike = Union[str, "os.PathLike[str]"]
 
 __all__ = [
@@ -78,10 +80,6 @@ _REAL_DATASETS: dict[str, tuple[str, ...]] = {
         "/usr/lib/mricron/templates/ch2.nii.gz",
     ),
 }
-
-
-class VolumeReadError(ValueError):
-    """A volume file could not be read; the message is one human-readable line naming the file."""
 
 
 @dataclass(frozen=True, eq=False)
