@@ -25,8 +25,8 @@ from IsoSimilarityTFLib.options import OPTIONS, Option
 from . import __version__
 from .console import ProgressPrinter, summary_text
 from .inputs import DEFAULT_PHANTOM_SIZE
-from .outputs import DEFAULT_SIZE, DEFAULT_VIEW, MIN_SIZE
-from .rendering import VIEW_DIRECTIONS
+from .outputs import DEFAULT_BACKDROP, DEFAULT_RAY_CASTING, DEFAULT_SIZE, DEFAULT_VIEW, MIN_SIZE
+from .rendering import BACKDROPS, RAY_CASTING, VIEW_DIRECTIONS
 from .run import STAGES, run
 
 PROG = "isosimtf"
@@ -157,6 +157,19 @@ def build_parser() -> argparse.ArgumentParser:
         help="side of render.png in pixels; class tiles are half of it (default %(default)s)",
     )
     output.add_argument(
+        "--backdrop",
+        choices=BACKDROPS,
+        default=DEFAULT_BACKDROP,
+        help="3D view backdrop of the pictures: black, or slicer (the blue gradient of Slicer's 3D view) "
+        "(default %(default)s)",
+    )
+    output.add_argument(
+        "--ray-casting",
+        choices=tuple(RAY_CASTING),
+        default=DEFAULT_RAY_CASTING,
+        help="Slicer's CPU or GPU (OpenGL) ray casting for the pictures (default %(default)s)",
+    )
+    output.add_argument(
         "-q", "--quiet", action="store_true", help="no progress lines on stderr (the summary still goes to stdout)"
     )
 
@@ -205,6 +218,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             seed=args.seed,
             progress=progress,
             warn=_print_warning,
+            backdrop=args.backdrop,
+            ray_casting=args.ray_casting,
         )
     except BaseException as error:  # one line, no traceback (ISOSIMTF_DEBUG=1 shows it)
         progress.finish()

@@ -1,4 +1,4 @@
-"""Picture composition without Qt or matplotlib: label text from VTK's FreeType renderer, the class grid, framing.
+"""Picture composition without Qt or matplotlib: label text from VTK's FreeType renderer and the class grid.
 
 Pictures are ``(height, width, 3)`` uint8 RGB numpy arrays.
 """
@@ -117,37 +117,3 @@ def class_grid(
         draw_text(strip, line2, 4, 3 + line_height, font_size)
         grid[top + height : top + cell_height, left : left + width] = strip
     return grid
-
-
-
-def content_box(picture: np.ndarray, threshold: int = 10) -> Optional[tuple[int, int, int, int]]:
-    """``(row0, row1, column0, column1)`` (inclusive) of the pixels brighter than ``threshold``, or None."""
-    rows = np.flatnonzero(picture.max(axis=2).max(axis=1) > threshold)
-    columns = np.flatnonzero(picture.max(axis=2).max(axis=0) > threshold)
-    if rows.size == 0:
-        return None
-    return int(rows[0]), int(rows[-1]), int(columns[0]), int(columns[-1])
-
-
-def frame_content(camera, picture: np.ndarray, margin: float = 0.04) -> None:
-    """Narrow a ``vtkCamera`` so that what ``picture`` (rendered with it) shows fills the view, plus a margin.
-
-    The camera keeps its position and direction: its view angle shrinks and its window centre moves onto the
-    content, so every class tile shows the volume as large as possible and all tiles share one framing.
-    """
-    box = content_box(picture)
-    if box is None:
-        return
-    height, width = picture.shape[:2]
-    row0, row1, column0, column1 = box
-    side = max(row1 - row0 + 1, column1 - column0 + 1) * (1.0 + margin)
-    factor = min(width, height) / side
-    if factor <= 1.0:
-        return
-    # Content centre in normalized device coordinates (-1..1, y up), before zooming.
-    centre_x = (column0 + column1 + 1) / width - 1.0
-    centre_y = 1.0 - (row0 + row1 + 1) / height
-    half_angle = math.radians(camera.GetViewAngle()) / 2.0
-    camera.SetViewAngle(math.degrees(2.0 * math.atan(math.tan(half_angle) / factor)))
-    camera.SetWindowCenter(centre_x * factor, centre_y * factor)
-

@@ -21,7 +21,7 @@ from IsoSimilarityTFLib.errors import OutputError, RenderError, UsageError
 from IsoSimilarityTFLib.pictures import similarity_image
 
 from .console import ProgressPrinter
-from .figures import class_grid, class_label_lines, frame_content
+from .figures import class_grid, class_label_lines
 from .formatting import value_decimals
 from .volume_io import Volume
 
@@ -42,6 +42,8 @@ SCENE_FOLDER = "scene"
 
 DEFAULT_VIEW = "anterior"
 DEFAULT_SIZE = 512
+DEFAULT_BACKDROP = "black"
+DEFAULT_RAY_CASTING = "cpu"
 MIN_SIZE = 32
 
 
@@ -137,13 +139,19 @@ def render_outputs(
     size: int = DEFAULT_SIZE,
     tile_size: Optional[int] = None,
     progress: Optional[ProgressPrinter] = None,
+    backdrop: str = DEFAULT_BACKDROP,
+    ray_casting: str = DEFAULT_RAY_CASTING,
 ) -> None:
     """Render with Slicer's volume rendering (headless): render.png, classes.png, and save the Slicer scene.
 
-    One headless Slicer serves all pictures: the design goes onto the volume through :func:`mrml.apply_design`,
-    each class tile shows ``design.solo(class)`` written into the same property node in place, seen from the camera
-    of the main picture narrowed onto the volume (:func:`frame_content`). The scene is saved after solo mode is left
-    and the camera restored, so it shows the full transfer function as in render.png.
+    One headless Slicer serves all pictures: the design goes onto the volume through :func:`mrml.apply_design`;
+    render.png is framed to its content (the volume fills the picture with a small margin), and each class tile
+    shows ``design.solo(class)`` written into the same property node in place, seen from the same narrowed camera.
+    The scene is saved after solo mode is left, so it shows the full transfer function as in render.png.
+
+    Args:
+        backdrop: "black" or "slicer" (Slicer's blue gradient), see ``rendering.BACKDROPS``.
+        ray_casting: "cpu" or "gpu", see ``rendering.RAY_CASTING``.
     """
     from IsoSimilarityTFLib.mrml import apply_design, update_property_node
 
@@ -153,12 +161,13 @@ def render_outputs(
     tile_size = tile_size or max(MIN_SIZE, size // 2)
     classes = shown_classes(design)
     decimals = value_decimals(design.value_range, design.n_bins)
-    with HeadlessSlicer(size=(size, size)) as headless:
+    background = (0.0, 0.0, 0.0) if backdrop == "black" else None
+    with HeadlessSlicer(size=(size, size), rendering_method=ray_casting, background=background) as headless:
         volume_node = headless.add_volume(volume.values, name=volume.name, ijk_to_ras=volume.ijk_to_ras())
         property_node = apply_design(volume_node, design, headless.volume_rendering_logic)
         if progress is not None:
             progress.update("render.png")
-        picture = headless.render(view)
+        picture = headless.render(view, frame=True)
         path = outdir / OUTPUT_FILES["render_png"]
         write_png(picture, path)
         result.files["render_png"] = path
@@ -167,11 +176,7 @@ def render_outputs(
             headless.render_window.SetSize(tile_size, tile_size)
             tiles, labels, colors = [], [], []
             previous_solo = design.solo_class
-            camera = headless.camera_node.GetCamera() if headless.camera_node is not None else None
-            saved_camera = (camera.GetViewAngle(), camera.GetWindowCenter()) if camera is not None else None
             try:
-                if camera is not None:
-                    frame_content(camera, picture)
                 for number, item in enumerate(classes, 1):
                     if progress is not None:
                         progress.update(f"class {number} of {len(classes)}")
@@ -183,9 +188,6 @@ def render_outputs(
             finally:
                 design.solo(previous_solo)
                 update_property_node(property_node, design)
-                if camera is not None and saved_camera is not None:
-                    camera.SetViewAngle(saved_camera[0])
-                    camera.SetWindowCenter(*saved_camera[1])
                 headless.render_window.SetSize(size, size)
             path = outdir / OUTPUT_FILES["classes_png"]
             write_png(class_grid(tiles, labels, colors), path)

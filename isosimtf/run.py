@@ -10,6 +10,8 @@ from IsoSimilarityTFLib.errors import RenderError, UsageError
 from .console import ProgressPrinter
 from .inputs import DEFAULT_PHANTOM_SIZE, PathLike, input_info, load_input
 from .outputs import (
+    DEFAULT_BACKDROP,
+    DEFAULT_RAY_CASTING,
     DEFAULT_SIZE,
     DEFAULT_VIEW,
     MIN_SIZE,
@@ -19,7 +21,7 @@ from .outputs import (
     write_classes_json,
     write_data_files,
 )
-from .rendering import VIEW_DIRECTIONS, slicer_core_available
+from .rendering import BACKDROPS, RAY_CASTING, VIEW_DIRECTIONS, slicer_core_available
 
 #: The command's stages, in order, as printed and as keys of ``timings_s`` in classes.json.
 STAGES = ("read", *DESIGN_STAGES, "write", "render")
@@ -37,6 +39,8 @@ def run(
     seed: int = 0,
     progress: Optional[ProgressPrinter] = None,
     warn: Optional[Callable[[str], None]] = None,
+    backdrop: str = DEFAULT_BACKDROP,
+    ray_casting: str = DEFAULT_RAY_CASTING,
 ) -> RunResult:
     """Read ``source``, design its transfer function and fill ``outdir``.
 
@@ -51,6 +55,8 @@ def run(
         phantom_size, seed: voxels per axis and seed of the phantom.
         progress: stage printer.
         warn: called with each warning line.
+        backdrop: 3D view backdrop of the pictures, "black" or "slicer" (see ``BACKDROPS``).
+        ray_casting: "cpu" (default, reproducible) or "gpu" (see ``RAY_CASTING``).
 
     Raises:
         UsageError, VolumeReadError, ValueError: bad output path, input or option (a usage or input error).
@@ -61,6 +67,10 @@ def run(
         raise UsageError(f"view must be one of {', '.join(VIEW_DIRECTIONS)}; got {view!r}")
     if size < MIN_SIZE:
         raise UsageError(f"size must be at least {MIN_SIZE} pixels; got {size}")
+    if backdrop not in BACKDROPS:
+        raise UsageError(f"backdrop must be one of {', '.join(BACKDROPS)}; got {backdrop!r}")
+    if ray_casting not in RAY_CASTING:
+        raise UsageError(f"ray casting must be one of {', '.join(RAY_CASTING)}; got {ray_casting!r}")
     options = dict(options or {})
     warnings: list[str] = []
 
@@ -98,7 +108,7 @@ def run(
         start = time.perf_counter()
         progress.stage("render", "(Slicer volume rendering, headless)")
         try:
-            render_outputs(result, view=view, size=size, progress=progress)
+            render_outputs(result, view=view, size=size, progress=progress, backdrop=backdrop, ray_casting=ray_casting)
         except (RuntimeError, OSError, ValueError) as error:
             raise RenderError(
                 f"rendering failed ({error}); the other outputs are in '{path}' (use --no-render to skip rendering)"
