@@ -10,9 +10,10 @@ from typing import Optional
 from .errors import InsufficientMemoryError
 from .quantize import MAX_BINS
 
-# Bytes per voxel at the peak of the similarity stage, per byte of bin index: the quantized volume, the unit-cell
-# minima and maxima, and the coarser octree levels reduced from them (1/7 of the unit cells).
-_BYTES_PER_VOXEL = 1 + 2 + 2 / 7
+# Bytes per voxel at the peak of the similarity stage, per byte of bin index: the quantized volume, the hyper-cell
+# minima and maxima of the second finest octree level (1/8 of the voxels; the unit cells are never held whole) and of
+# the coarser levels reduced from it (1/7 of that), and of a level nested in no finer one (at most 1/27).
+_BYTES_PER_VOXEL = 1 + 2 / 8 * (1 + 1 / 7) + 2 / 27
 # Float64 matrices of n_bins x n_bins alive at once while aggregating the levels.
 _MATRICES = 6
 # Slabs, chunks and libraries.
