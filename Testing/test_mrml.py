@@ -4,8 +4,7 @@ actions, scene save/reload (also of older scenes), rendering, classes as segment
 import numpy as np
 import pytest
 
-from IsoSimilarityTFLib import design_transfer_function
-from IsoSimilarityTFLib import mrml
+from IsoSimilarityTFLib import design_transfer_function, mrml
 from IsoSimilarityTFLib.mrml import apply_design, design_node_of, design_of, update_property_node
 from isosimtf.phantom import head_phantom
 
