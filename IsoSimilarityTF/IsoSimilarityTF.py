@@ -388,6 +388,12 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             return
         with slicer.util.tryWithErrorDisplay(_("Failed to compute the transfer function."), waitCursor=True):
             options = self.logic.designOptions(self._parameterNode)
+            from IsoSimilarityTFLib.session import fit_levels
+
+            dimensions = volume.GetImageData().GetDimensions() if volume.GetImageData() else (0, 0, 0)
+            available = fit_levels(tuple(reversed(dimensions)), options)[1]
+            if available is not None:
+                logging.info(f"IsoSimilarityTF: {volume.GetName()} has {available} octree levels; using all of them")
             self.addLog(_("Designing a transfer function for {name}...").format(name=volume.GetName()))
             self._job = self.logic.start(volume, options)
             self._jobVolume = volume

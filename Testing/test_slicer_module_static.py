@@ -418,7 +418,7 @@ def test_classes_table_columns_match_the_module():
 # Values the module's own tests write into the parameter node ----------------------------------------------------------
 def _field_check(annotation: ast.expr):
     """(minimum, maximum, choices) the parameter node wrapper validates a field with."""
-    kind, choices = _annotation_kind(annotation)
+    choices = _annotation_kind(annotation)[1]
     if choices is not None:
         return None, None, set(choices)
     for extra in annotation.slice.elts[1:] if isinstance(annotation, ast.Subscript) else []:
