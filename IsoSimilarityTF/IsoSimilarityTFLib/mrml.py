@@ -131,17 +131,21 @@ def displayed_property_node(volume_node) -> Optional[object]:
 
 # Comparing ----------------------------------------------------------------------------------------------------------
 def shows_design(property_node, design: TransferFunctionDesign, tolerance: float = TOLERANCE) -> bool:
-    """Whether the node's colour and scalar opacity functions are the design's transfer function."""
+    """Whether the node's colour and scalar opacity functions are what the design writes into a volume property."""
+    from vtkmodules.vtkRenderingCore import vtkVolumeProperty
+
     if property_node is None or property_node.GetVolumeProperty() is None:
         return False
+    expected_property = vtkVolumeProperty()
+    design.update_volume_property(expected_property)
     opacity, _, color = points_of_volume_property(property_node.GetVolumeProperty())
-    points = design.transfer_function()
-    expected_opacity = np.column_stack([points.x, points.opacity])
-    expected_color = np.column_stack([points.x, points.color])
-    scale = max(1.0, float(np.abs(points.x).max()))
+    expected_opacity, _, expected_color = points_of_volume_property(expected_property)
+    scale = max(1.0, float(np.abs(expected_opacity[:, 0]).max(initial=0.0)))
     for actual, expected in ((opacity, expected_opacity), (color, expected_color)):
         if actual.shape != expected.shape:
             return False
+        if actual.size == 0:
+            continue
         if np.abs(actual[:, 0] - expected[:, 0]).max() > tolerance * scale:
             return False
         if np.abs(actual[:, 1:] - expected[:, 1:]).max() > tolerance:
@@ -286,21 +290,22 @@ def update_design(volume_node, design: TransferFunctionDesign, volume_rendering_
 
 
 # Segments -----------------------------------------------------------------------------------------------------------
-def _voxels(volume_node) -> np.ndarray:
+def voxel_array(volume_node) -> np.ndarray:
+    """The voxels of a scalar volume node, a view indexed ``[k, j, i]`` (like ``slicer.util.arrayFromVolume``)."""
     from vtkmodules.util import numpy_support
 
     image = volume_node.GetImageData() if volume_node is not None else None
     if image is None or image.GetPointData().GetScalars() is None:
-        raise ValueError("the volume holds no image data")
+        raise ValueError("The volume holds no image data.")
     if image.GetNumberOfScalarComponents() != 1:
-        raise ValueError("the volume must have one component per voxel")
+        raise ValueError("The volume must be a single-component (scalar) volume.")
     columns, rows, slices = image.GetDimensions()
     return numpy_support.vtk_to_numpy(image.GetPointData().GetScalars()).reshape(slices, rows, columns)
 
 
 def class_label_volume(volume_node, design: TransferFunctionDesign) -> np.ndarray:
     """Class id per voxel (``[k, j, i]``), from the same quantization as the design's."""
-    quantized = quantize(_voxels(volume_node), design.n_bins, tuple(design.value_range))
+    quantized = quantize(voxel_array(volume_node), design.n_bins, tuple(design.value_range))
     return np.asarray(design.labels)[quantized.bins]
 
 

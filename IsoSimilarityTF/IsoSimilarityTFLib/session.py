@@ -20,16 +20,7 @@ MAX_KEPT_SIMILARITIES = 4
 def volume_values(volume_node):
     """The voxel array (a view, ``[k, j, i]`` like ``slicer.util.arrayFromVolume``) and the spacing (mm) of a scalar
     volume node."""
-    from vtkmodules.util import numpy_support
-
-    image = volume_node.GetImageData() if volume_node is not None else None
-    if image is None or image.GetPointData().GetScalars() is None:
-        raise ValueError("The input volume holds no image data.")
-    if image.GetNumberOfScalarComponents() != 1:
-        raise ValueError("The input must be a single-component (scalar) volume.")
-    columns, rows, slices = image.GetDimensions()
-    values = numpy_support.vtk_to_numpy(image.GetPointData().GetScalars()).reshape(slices, rows, columns)
-    return values, tuple(volume_node.GetSpacing())
+    return mrml.voxel_array(volume_node), tuple(volume_node.GetSpacing())
 
 
 def fit_levels(shape, options: dict) -> tuple:
