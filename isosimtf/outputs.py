@@ -3,7 +3,8 @@
 The folder holds ``similarity.npy``, ``similarity.png``, ``classes.json``, ``transfer_function.vp.json``,
 ``transfer_function.vp`` and, when rendering, ``render.png`` (the volume rendered with the automatic transfer function
 by Slicer's own volume rendering, headless), ``classes.png`` (one small render per shown class, labelled) and
-``scene/scene.mrml`` (a Slicer scene with the volume and the transfer function, to open in Slicer).
+``scene/scene.mrml`` (a Slicer scene with the volume and the transfer function, to open in Slicer) and
+``classes.seg.nrrd`` (one segment per shown class, Slicer's segmentation file).
 """
 
 import json
@@ -37,6 +38,7 @@ OUTPUT_FILES = {
     "render_png": "render.png",
     "classes_png": "classes.png",
     "scene": "scene/scene.mrml",
+    "segmentation": "classes.seg.nrrd",
 }
 SCENE_FOLDER = "scene"
 
@@ -194,6 +196,10 @@ def render_outputs(
             result.files["classes_png"] = path
 
         if progress is not None:
+            progress.update("classes.seg.nrrd")
+        write_segmentation(result, headless, volume_node)
+
+        if progress is not None:
             progress.update("scene")
         scene_dir = outdir / SCENE_FOLDER
         if scene_dir.exists():
@@ -203,3 +209,28 @@ def render_outputs(
             raise RenderError(f"Slicer could not save the scene into '{scene_dir}'")
         result.files["scene"] = scene_dir / f"{scene_dir.name}.mrml"
 
+
+def write_segmentation(result: RunResult, headless, volume_node) -> None:
+    """classes.seg.nrrd: one segment per shown class, with its name, colour and voxels (Slicer opens it as a
+    segmentation). The segmentation is not left in the scene saved afterwards."""
+    import slicer
+
+    from IsoSimilarityTFLib.mrml import export_segmentation
+
+    segmentations = slicer.vtkSlicerSegmentationsModuleLogic()  # registers the segmentation converters, as Slicer does
+    segmentations.SetMRMLApplicationLogic(headless.app_logic)
+    segmentations.SetMRMLScene(headless.scene)
+    path = result.outdir / OUTPUT_FILES["segmentation"]
+    try:
+        node = export_segmentation(volume_node, result.design)
+        storage = headless.scene.AddNewNodeByClass("vtkMRMLSegmentationStorageNode")
+        storage.SetFileName(str(path))
+        written = storage.WriteData(node)
+        for added in (storage, node.GetDisplayNode(), node):
+            if added is not None:
+                headless.scene.RemoveNode(added)
+    finally:
+        segmentations.SetMRMLScene(None)
+    if not written:
+        raise RenderError(f"Slicer could not write '{path}'")
+    result.files["segmentation"] = path
