@@ -228,3 +228,21 @@ def test_verdict_applies_the_issue_targets():
     assert not compare.verdict(1.0, 1.31)
     assert not compare.verdict(None, 1.0)
     assert compare.ratio(2.0, 4.0) == 0.5 and compare.ratio(1.0, 0.0) is None
+
+
+def test_partial_volume_voxel_shows_the_tissue_that_raised_its_value():
+    # One row: air, an air voxel raised by the skin, soft tissue, a soft-tissue voxel raised by the skull, skull
+    # (a skull voxel lowered by soft tissue stays skull).
+    labels = np.array([[[0, 0, 1, 1, 1, 1, 2, 2]]], dtype=np.uint8)
+    values = np.array([[[-1000.0, -400.0, 55.0, 70.0, 62.0, 300.0, 700.0, 1000.0]]])
+    means = (-1000.0, 60.0, 1000.0)
+    shown = tissues.partial_volume_labels(values, labels, means, tolerance=60.0, radius=1)
+    assert shown.tolist() == [[[0, 1, 1, 1, 1, 2, 2, 2]]]
+    far = tissues.partial_volume_labels(values, labels, means, tolerance=60.0, radius=0)
+    assert far.tolist() == labels.tolist()  # no neighbour within reach: own tissue
+
+
+def test_dilate_grows_by_the_radius_without_wrapping():
+    mask = np.zeros((1, 1, 7), dtype=bool)
+    mask[0, 0, 0] = True
+    assert tissues.dilate(mask, 2)[0, 0].tolist() == [True, True, True, False, False, False, False]

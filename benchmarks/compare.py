@@ -55,7 +55,13 @@ if str(HERE) not in sys.path:
 
 from picture_metrics import picture_metrics, resize_area  # noqa: E402
 from slicer_presets import ATTRIBUTION, PresetsNotFound, PresetsSource, find_presets, read_presets  # noqa: E402
-from tissue_visibility import property_functions, ray_axis, tissue_summary, tissue_weights  # noqa: E402
+from tissue_visibility import (  # noqa: E402
+    partial_volume_labels,
+    property_functions,
+    ray_axis,
+    tissue_summary,
+    tissue_weights,
+)
 
 REPO = HERE.parent
 RESULTS = HERE / "results"
@@ -92,12 +98,16 @@ class Case:
     available: Callable[[], bool] = field(default=lambda: True)
 
 
+#: The phantom's noise (HU) and blur (mm): ``head_phantom``'s defaults, which ``isosimtf phantom`` uses.
+PHANTOM_NOISE_HU, PHANTOM_BLUR_MM = 20.0, 1.0
+
+
 def _phantom() -> tuple:
     from IsoSimilarityTFLib.phantom import TISSUES, head_phantom
     from IsoSimilarityTFLib.report import load_input
 
     volume = load_input("phantom")
-    labels = head_phantom(volume.values.shape[0], seed=0).labels
+    labels = head_phantom(volume.values.shape[0], seed=0, noise_hu=PHANTOM_NOISE_HU, blur_mm=PHANTOM_BLUR_MM).labels
     return volume.values, volume.ijk_to_ras(), labels, TISSUES
 
 
@@ -373,7 +383,14 @@ def run_case(case: Case, presets: PresetsSource, size: int, gpu: bool) -> dict:
 
 
 def tissue_statistics(values, ijk_to_ras, labels, tissues, looks: list[Look], spacing) -> dict:
-    """Per view and look: each ground-truth tissue's share of the picture and visibility (``tissue_visibility``)."""
+    """Per view and look: each ground-truth tissue's share of the picture and visibility (``tissue_visibility``).
+
+    Samples are attributed with partial volume accounted for: 3 noise sigma of tolerance, the blur's 3-sigma reach.
+    """
+    from IsoSimilarityTFLib.phantom import TISSUE_HU
+
+    radius = int(np.ceil(3.0 * PHANTOM_BLUR_MM / min(spacing)))
+    attribution = partial_volume_labels(values, labels, TISSUE_HU, 3.0 * PHANTOM_NOISE_HU, radius)
     result: dict[str, dict] = {}
     for view in VIEWS:
         axis, reverse = ray_axis(ijk_to_ras, view)
@@ -381,7 +398,7 @@ def tissue_statistics(values, ijk_to_ras, labels, tissues, looks: list[Look], sp
         for look in looks:
             opacity, gradient, unit = property_functions(look.property_node.GetVolumeProperty())
             weights, crosses = tissue_weights(
-                values, labels, len(tissues), opacity, spacing, axis, reverse, unit, gradient
+                values, labels, len(tissues), opacity, spacing, axis, reverse, unit, gradient, attribution
             )
             result[view][look.name] = tissue_summary(weights, crosses, tissues)
     return result
