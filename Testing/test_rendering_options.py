@@ -116,3 +116,28 @@ def test_gpu_ray_casting_logs_the_lookup_table_fallback_only_for_near_vertical_s
     assert results["smooth"][1] == []
     assert results["steep"][1], "a near-vertical step should make VTK fall back to a narrower lookup table"
     assert "texture size" in results["steep"][1][0]
+
+
+def test_cli_render_png_is_framed_and_takes_the_slicer_backdrop(tmp_path):
+    from test_cli import read_png
+
+    from IsoSimilarityTFLib import cli
+
+    status = cli.main(
+        ["phantom", "-o", str(tmp_path), "--phantom-size", "32", "--size", "96", "-q", "--backdrop", "slicer"]
+    )
+    assert status == 0
+    picture = read_png(tmp_path / "render.png")[..., :3]
+    corner = picture[0, 0].astype(int)
+    assert corner[2] > corner[0] + 30  # Slicer's blue backdrop, not black
+    with rendering.HeadlessSlicer(size=(96, 96), background=None) as headless:
+        backdrop = headless.backdrop()
+    row0, row1, column0, column1 = rendering.content_box(picture, backdrop, threshold=25)
+    assert max(row1 - row0, column1 - column0) + 1 >= 0.85 * 96  # the head fills the picture
+
+
+def test_cli_rejects_an_unknown_backdrop(capsys):
+    from IsoSimilarityTFLib import cli
+
+    assert cli.main(["phantom", "-o", "unused", "--backdrop", "white"]) == cli.EXIT_USAGE
+    assert "--backdrop" in capsys.readouterr().err
