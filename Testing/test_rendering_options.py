@@ -141,3 +141,10 @@ def test_cli_rejects_an_unknown_backdrop(capsys):
 
     assert cli.main(["phantom", "-o", "unused", "--backdrop", "white"]) == cli.EXIT_USAGE
     assert "--backdrop" in capsys.readouterr().err
+
+
+def test_backdrop_follows_the_render_window_size():
+    for background in ((0.0, 0.0, 0.0), None):
+        with rendering.HeadlessSlicer(size=SIZE, background=background) as headless:
+            headless.render_window.SetSize(40, 30)
+            assert headless.backdrop().shape == (30, 40, 3)

@@ -622,7 +622,8 @@ class HeadlessSlicer:
         self._check_open()
         if self._background is not None:
             color = np.round(255.0 * np.clip(self._background, 0.0, 1.0)).astype(np.uint8)
-            return np.broadcast_to(color, (self._size[1], self._size[0], 3)).copy()
+            width, height = self.render_window.GetSize()  # the current size (it may have been changed)
+            return np.broadcast_to(color, (height, width, 3)).copy()
         hidden = self.rendered_volumes()
         for prop in hidden:
             prop.SetVisibility(False)
