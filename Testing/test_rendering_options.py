@@ -115,7 +115,11 @@ def test_gpu_ray_casting_logs_the_lookup_table_fallback_only_for_near_vertical_s
     assert results["smooth"][0].any()  # the GPU ray caster renders headless
     assert results["smooth"][1] == []
     assert results["steep"][1], "a near-vertical step should make VTK fall back to a narrower lookup table"
-    assert "texture size" in results["steep"][1][0]
+    # The width VTK asked for is the one lookup_table_width predicts without rendering.
+    predicted = rendering.lookup_table_width(_property(STEEP), (0.0, 100.0))
+    assert predicted > rendering.LOOKUP_TABLE_LIMIT
+    assert f"texture size of {predicted}," in results["steep"][1][0]
+    assert rendering.lookup_table_width(_property(SMOOTH), (0.0, 100.0)) <= rendering.LOOKUP_TABLE_LIMIT
 
 
 def test_cli_render_png_is_framed_and_takes_the_slicer_backdrop(tmp_path):
