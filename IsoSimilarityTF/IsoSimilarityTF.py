@@ -812,6 +812,7 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
         """A design made without affinity propagation (no scikit-learn needed): 64 bins over 0..640, 4 classes."""
         from IsoSimilarityTFLib import TransferFunctionDesign
         from IsoSimilarityTFLib.classes import build_classes
+        from IsoSimilarityTFLib.tissues import tissue_hierarchy
 
         n_bins = 64
         labels = np.repeat(np.arange(4), [8, 16, 24, 16])
@@ -819,9 +820,9 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
         bin_voxels = np.ones(n_bins, dtype=np.int64)
         bin_voxels[:8] = 1000
         edges = np.linspace(0.0, 640.0, n_bins + 1)
-        classes = build_classes(labels, exemplars, bin_voxels, edges, background="largest", max_classes=15)
+        classes = build_classes(labels, exemplars, bin_voxels, edges, background="largest")
         similarity = np.where(labels[:, None] == labels[None, :], 1.0, 0.2)
-        return TransferFunctionDesign(
+        design = TransferFunctionDesign(
             value_range=(0.0, 640.0),
             n_bins=n_bins,
             labels=labels,
@@ -829,9 +830,13 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
             options={"n_bins": n_bins},
             clustering={"n_iter": 10, "converged": True, "n_classes": 4, "damping": 0.5},
             timings_s={"quantize": 0.01, "similarity": 0.02, "clustering": 0.03, "classes": 0.0},
+            bin_voxels=bin_voxels,
+            hierarchy=tissue_hierarchy(labels, bin_voxels, [1, 2, 3], similarity),
             spacing=(0.5, 0.5, 0.8),
             similarity=similarity,
         )
+        design.regroup("all")
+        return design
 
     @staticmethod
     def _opacityAt(propertyNode, value: float) -> float:
