@@ -2,9 +2,10 @@
 
 What Slicer's presets do, and why we do it too (the presets are read to learn from, not copied):
 
-* **Colours along one ramp** ordered by intensity, dark red -> tan -> ivory -> white, one colour per tissue: the
-  classes of one tissue share it, so neighbouring classes never read as rainbow rings ("wood grain"). The
-  qualitative palette stays available (``colors="distinct"``).
+* **Colours along one ramp** ordered by intensity, dark red -> tan -> ivory -> white, one colour per tissue placed by
+  its mean value between the lowest shown tissue and the densest real one: the classes of one tissue share it, so
+  neighbouring classes never read as rainbow rings ("wood grain"). The qualitative palette stays available
+  (``colors="distinct"``).
 * **Opacity per millimetre**: the scalar opacity unit distance is 1 mm whatever the voxel spacing (presets leave
   VTK's default of 1 world unit, a millimetre in Slicer), so a 0.5 mm volume is not twice as hazy.
 * **Opacity by the kind of volume** (:func:`detect_kind`): CT values are Hounsfield units, so opacity follows a fixed
@@ -125,6 +126,7 @@ def default_look(
     if colors not in COLOR_SCHEMES:
         raise ValueError(f"colors must be one of {COLOR_SCHEMES}; got {colors!r}")
     tissue_of_class = np.asarray(tissue_of_class)
+    class_values = np.asarray(class_values, dtype=np.float64)
     n_tissues = int(tissue_of_class.max()) + 1 if tissue_of_class.size else 0
     voxels = np.array([c.voxels for c in classes], dtype=np.float64)
     contact = np.array([c.background_contact for c in classes])
@@ -149,12 +151,18 @@ def default_look(
     # Colours: one per tissue.
     tissue_color = {t: list(BACKGROUND_GREY) for t in range(n_tissues)}
     if colors == "ramp":
-        # The ramp spans the shown tissues; a hidden one takes the colour of the nearest shown one in intensity.
+        # A tissue's place on the ramp is its mean value between the lowest shown tissue's (dark red) and the
+        # densest real tissue's (white), so the colour says how dense it is, as in the presets: on CT the bone
+        # tissues are ivory to white however many soft-tissue tissues lie below them.
+        tissue_value = np.bincount(tissue_of_class, weights=voxels * class_values, minlength=n_tissues) / np.maximum(
+            tissue_voxels, 1
+        )
         anchors = shown_sorted or foreground
-        places = np.linspace(0.0, 1.0, len(anchors)) if len(anchors) > 1 else np.ones(1)
+        low = tissue_value[anchors[0]]
+        high = tissue_value[max(real)] if real else tissue_value[anchors[-1]]
         for t in foreground:
-            nearest = min(range(len(anchors)), key=lambda i: abs(anchors[i] - t))
-            tissue_color[t] = [float(v) for v in ramp_colors(places[nearest : nearest + 1])[0]]
+            place = (tissue_value[t] - low) / (high - low) if high > low else 1.0
+            tissue_color[t] = [float(v) for v in ramp_colors(np.array([place]))[0]]
     else:
         for i, t in enumerate(sorted(foreground, key=lambda t: (-tissue_voxels[t], t))):
             tissue_color[t] = list(PALETTE[i % len(PALETTE)])
@@ -178,7 +186,7 @@ def default_look(
             elif t not in below:
                 tissue_opacity[t] = MR_LOW
         opacity = tissue_opacity[tissue_of_class]
-    opacity = _cap_tiny(opacity, voxels, is_background, np.asarray(class_values, dtype=np.float64))
+    opacity = _cap_tiny(opacity, voxels, is_background, class_values)
     opacity[is_background] = 0.0
 
     visible = [bool(tissue_of_class[c.id] in shown) and not c.background for c in classes]
