@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 
 export VTK_DEFAULT_OPENGL_WINDOW ?= vtkEGLRenderWindow
 
-.PHONY: all test demo bench evaluate lint clean
+.PHONY: all test demo bench evaluate compare lint clean
 
 all: test
 
@@ -27,6 +27,11 @@ bench: $(STAMP)
 
 evaluate: $(STAMP)
 	$(BIN)/python benchmarks/evaluate.py
+
+# Ours against Slicer's first click and presets. Slicer's presets.xml is read at run time, never committed:
+# PRESETS=/path/presets.xml, else $$ISOSIMTF_PRESETS, ../shared/presets.xml, or a git mirror of Slicer.
+compare: $(STAMP)
+	$(BIN)/python benchmarks/compare.py $(if $(PRESETS),--presets "$(PRESETS)")
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -19,9 +19,11 @@ from .classes import BACKGROUND_RULES
 from .clustering import PREFERENCES, ClusteringError
 from .design import DEFAULT_OPTIONS, UNCONVERGED_RULES
 from .memory import InsufficientMemoryError
-from .rendering import VIEW_DIRECTIONS
+from .rendering import BACKDROPS, RAY_CASTING, VIEW_DIRECTIONS
 from .report import (
+    DEFAULT_BACKDROP,
     DEFAULT_PHANTOM_SIZE,
+    DEFAULT_RAY_CASTING,
     DEFAULT_SIZE,
     DEFAULT_VIEW,
     MIN_SIZE,
@@ -218,6 +220,19 @@ def build_parser() -> argparse.ArgumentParser:
         help="side of render.png in pixels; class tiles are half of it (default %(default)s)",
     )
     output.add_argument(
+        "--backdrop",
+        choices=BACKDROPS,
+        default=DEFAULT_BACKDROP,
+        help="3D view backdrop of the pictures: black, or slicer (the blue gradient of Slicer's 3D view) "
+        "(default %(default)s)",
+    )
+    output.add_argument(
+        "--ray-casting",
+        choices=tuple(RAY_CASTING),
+        default=DEFAULT_RAY_CASTING,
+        help="Slicer's CPU or GPU (OpenGL) ray casting for the pictures (default %(default)s)",
+    )
+    output.add_argument(
         "-q", "--quiet", action="store_true", help="no progress lines on stderr (the summary still goes to stdout)"
     )
 
@@ -279,6 +294,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             seed=args.seed,
             progress=progress,
             warn=_print_warning,
+            backdrop=args.backdrop,
+            ray_casting=args.ray_casting,
         )
     except BaseException as error:  # one line, no traceback (ISOSIMTF_DEBUG=1 shows it)
         progress.finish()

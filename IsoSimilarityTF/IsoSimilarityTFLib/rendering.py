@@ -16,10 +16,13 @@ Coordinates: volumes are placed in Slicer's RAS world (millimetres); ``values`` 
 
 from __future__ import annotations
 
+import contextlib
+import math
 import os
+import re
 import shutil
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -29,9 +32,16 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
     from vtkmodules.vtkRenderingCore import vtkVolume, vtkVolumeProperty
 
 __all__ = [
+    "BACKDROPS",
     "DEFAULT_RENDERING_METHOD",
+    "LOOKUP_TABLE_FALLBACK",
+    "RAY_CASTING",
     "VIEW_DIRECTIONS",
     "HeadlessSlicer",
+    "captured_vtk_messages",
+    "content_box",
+    "frame_content",
+    "lookup_table_fallbacks",
     "render_volume",
     "slicer_core_available",
     "write_png",
@@ -52,11 +62,31 @@ VIEW_DIRECTIONS = {
     "inferior": "Inferior",
 }
 
+#: View angle of a new Slicer 3D view's camera, in degrees (``vtkMRMLCameraNode``, like ``vtkCamera``).
+DEFAULT_VIEW_ANGLE = 30.0
+
 _RENDERING_METHODS = (
     "vtkMRMLCPURayCastVolumeRenderingDisplayNode",
     "vtkMRMLGPURayCastVolumeRenderingDisplayNode",
     "vtkMRMLMultiVolumeRenderingDisplayNode",
 )
+
+#: Short names of the ray casters (the ``--ray-casting`` option) -> volume rendering display node class. GPU ray
+#: casting runs headless too (OpenGL through EGL; with Mesa's llvmpipe it runs on the CPU cores).
+RAY_CASTING = {
+    "cpu": "vtkMRMLCPURayCastVolumeRenderingDisplayNode",
+    "gpu": "vtkMRMLGPURayCastVolumeRenderingDisplayNode",
+}
+
+#: 3D view backdrops (the ``--backdrop`` option): "black" (uniform, the default of our pictures) or "slicer" (the
+#: blue gradient a new Slicer 3D view starts with: ``vtkMRMLViewNode::defaultBackgroundColor()`` (light, at the
+#: bottom) and ``defaultBackgroundColor2()`` (darker, at the top), read from a new slicer-core view node at run time).
+BACKDROPS = ("black", "slicer")
+
+#: Start of the warning VTK's GPU ray caster logs (``vtkOpenGLVolumeLookupTable::GetMaximumSupportedTextureWidth``)
+#: when a transfer function needs a lookup table wider than the OpenGL texture limit (16384 with Mesa): the table is
+#: then cut to the limit and narrow steps of the transfer function are lost or misplaced.
+LOOKUP_TABLE_FALLBACK = "does not support the required texture size"
 
 # Presets that vtkSlicerVolumeRenderingLogic looks up by name. "US-Fetal" is mandatory: SetRecommendedVolumeRendering-
 # Properties (run by CreateDefaultVolumeRenderingNodes) copies it unchecked for 8-bit volumes and crashes when it is
@@ -167,6 +197,117 @@ def copy_volume_property(source: vtkVolumeProperty, target: vtkVolumeProperty) -
     target.SetIndependentComponents(source.GetIndependentComponents())
 
 
+def content_box(
+    picture: np.ndarray, backdrop: np.ndarray | None = None, threshold: int = 10
+) -> tuple[int, int, int, int] | None:
+    """Bounding box of the content of a picture: the pixels that differ from the backdrop.
+
+    Args:
+        picture: ``(height, width, 3)`` uint8 RGB.
+        backdrop: the empty view, same shape (or an RGB colour broadcast to it); black when None.
+        threshold: a pixel is content when a channel differs from the backdrop by more than this (0..255).
+
+    Returns:
+        ``(row0, row1, column0, column1)``, inclusive, or None when the picture shows nothing.
+    """
+    image = np.asarray(picture, dtype=np.int16)
+    reference = np.zeros(3, np.int16) if backdrop is None else np.asarray(backdrop, dtype=np.int16)
+    content = np.abs(image - reference).max(axis=2) > threshold
+    rows = np.flatnonzero(content.any(axis=1))
+    columns = np.flatnonzero(content.any(axis=0))
+    if rows.size == 0:
+        return None
+    return int(rows[0]), int(rows[-1]), int(columns[0]), int(columns[-1])
+
+
+def frame_content(
+    camera: Any,
+    picture: np.ndarray,
+    margin: float = 0.04,
+    *,
+    backdrop: np.ndarray | None = None,
+    box: tuple[int, int, int, int] | None = None,
+) -> bool:
+    """Narrow a ``vtkCamera`` so that what ``picture`` (rendered with it) shows fills the view, plus a margin.
+
+    The camera keeps its position and direction: its view angle shrinks and its window centre moves onto the
+    content, so the content fills the picture and pictures rendered next with this camera share one framing.
+
+    Args:
+        camera: the ``vtkCamera`` the picture was rendered with.
+        picture: ``(height, width, 3)`` uint8 RGB.
+        margin: free border, as a share of the content's larger side.
+        backdrop: the empty view (see :func:`content_box`); black when None.
+        box: the content box to frame (e.g. a union over several pictures) instead of the picture's own.
+
+    Returns:
+        True when the camera was changed (False: nothing shown, or the content already fills the picture).
+    """
+    box = box if box is not None else content_box(picture, backdrop)
+    if box is None:
+        return False
+    height, width = picture.shape[:2]
+    row0, row1, column0, column1 = box
+    side = max(row1 - row0 + 1, column1 - column0 + 1) * (1.0 + margin)
+    factor = min(width, height) / side
+    if factor <= 1.0:
+        return False
+    # Content centre in normalized device coordinates (-1..1, y up), before zooming.
+    centre_x = (column0 + column1 + 1) / width - 1.0
+    centre_y = 1.0 - (row0 + row1 + 1) / height
+    old_x, old_y = camera.GetWindowCenter()
+    half_angle = math.radians(camera.GetViewAngle()) / 2.0
+    camera.SetViewAngle(math.degrees(2.0 * math.atan(math.tan(half_angle) / factor)))
+    camera.SetWindowCenter((old_x + centre_x) * factor, (old_y + centre_y) * factor)
+    return True
+
+
+_VTK_MESSAGE_HEAD = re.compile(r"^(Warning|ERROR|Error|Generic Warning): In .*, line \d+\s*$")
+_VTK_OBJECT = re.compile(r"^\s*\w+ \(0x[0-9a-fA-F]+\):\s*")
+
+
+@contextlib.contextmanager
+def captured_vtk_messages() -> Iterator[list[str]]:
+    """Collect VTK's warnings and errors (``vtkWarningMacro``, ``vtkErrorMacro``) during a block, e.g. a render.
+
+    Yields a list that is filled when the block ends, one string per message (the object prefix and the
+    "In file.cxx, line N" head removed). Meanwhile nothing of it goes to stderr; afterwards VTK's output window and
+    logger are as before.
+    """
+    from vtkmodules.vtkCommonCore import vtkLogger, vtkOutputWindow, vtkStringOutputWindow
+
+    previous = vtkOutputWindow.GetInstance()
+    window = vtkStringOutputWindow()
+    vtkOutputWindow.SetInstance(window)
+    cutoff = vtkLogger.GetCurrentVerbosityCutoff()
+    vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_OFF)
+    messages: list[str] = []
+    try:
+        yield messages
+    finally:
+        vtkLogger.SetStderrVerbosity(vtkLogger.ConvertToVerbosity(cutoff))
+        vtkOutputWindow.SetInstance(previous)
+        messages.extend(split_vtk_messages(window.GetOutput() or ""))
+
+
+def split_vtk_messages(text: str) -> list[str]:
+    """Split the text of VTK's output window into messages, without their "In file, line" heads and object ids."""
+    messages, current = [], []
+    for line in [*text.splitlines(), ""]:
+        if _VTK_MESSAGE_HEAD.match(line.strip()) or not line.strip():
+            if current:
+                messages.append(" ".join(current))
+            current = []
+            continue
+        current.append(_VTK_OBJECT.sub("", line).strip())
+    return messages
+
+
+def lookup_table_fallbacks(messages: Sequence[str]) -> list[str]:
+    """The GPU ray caster's lookup-table fallback warnings among ``messages`` (see :data:`LOOKUP_TABLE_FALLBACK`)."""
+    return [message for message in messages if LOOKUP_TABLE_FALLBACK in message]
+
+
 class HeadlessSlicer:
     """Real MRML scene + application logic + volume rendering logic + an off-screen 3D view.
 
@@ -177,10 +318,10 @@ class HeadlessSlicer:
 
     Args:
         size: picture size ``(width, height)`` in pixels.
-        rendering_method: volume rendering display node class used for new display nodes; CPU ray casting (default)
-            gives reproducible pictures.
+        rendering_method: volume rendering display node class used for new display nodes, or a short name of
+            :data:`RAY_CASTING` ("cpu", "gpu"); CPU ray casting (default) gives reproducible pictures.
         background: view background colour ``(r, g, b)`` in 0..1 (uniform, no gradient); Slicer's default blue
-            gradient when None.
+            gradient when None (see :data:`BACKDROPS`).
         presets_file: a Slicer ``presets.xml`` to load as the volume rendering presets; when None a minimal presets
             file is generated in a temporary folder (see the module notes).
 
@@ -195,6 +336,7 @@ class HeadlessSlicer:
         background: tuple[float, float, float] | None = (0.0, 0.0, 0.0),
         presets_file: str | os.PathLike | None = None,
     ) -> None:
+        rendering_method = RAY_CASTING.get(rendering_method, rendering_method)
         if rendering_method not in _RENDERING_METHODS:
             raise ValueError(f"rendering_method must be one of {_RENDERING_METHODS}, got {rendering_method!r}")
         if len(size) != 2 or int(size[0]) < 1 or int(size[1]) < 1:
@@ -309,6 +451,11 @@ class HeadlessSlicer:
         if self._background is not None:
             view_node.SetBackgroundColor(*self._background)
             view_node.SetBackgroundColor2(*self._background)
+        else:
+            # A new view node holds Slicer's defaults (the static defaultBackgroundColor() is not wrapped usably).
+            defaults = self._slicer.vtkMRMLViewNode()
+            view_node.SetBackgroundColor(*defaults.GetBackgroundColor())
+            view_node.SetBackgroundColor2(*defaults.GetBackgroundColor2())
         view_node.EndModify(modifying)
 
     def _check_open(self) -> None:
@@ -437,12 +584,18 @@ class HeadlessSlicer:
         return result
 
     def reset_camera(self) -> None:
-        """Fit the camera to the visible props, keeping its direction (Slicer's "reset field of view")."""
+        """Fit the camera to the visible props, keeping its direction (Slicer's "reset field of view").
+
+        A narrowing left by ``render(frame=True)`` (view angle, window centre) is undone first.
+        """
         self._check_open()
+        camera = self.renderer.GetActiveCamera()
+        camera.SetViewAngle(DEFAULT_VIEW_ANGLE)
+        camera.SetWindowCenter(0.0, 0.0)
         self.renderer.ResetCamera()
         self.renderer.ResetCameraClippingRange()
 
-    def render(self, view: str | None = "anterior", reset_camera: bool = True) -> np.ndarray:
+    def render(self, view: str | None = "anterior", reset_camera: bool = True, *, frame: bool = False) -> np.ndarray:
         """Render the 3D view off-screen and return the picture.
 
         Args:
@@ -450,14 +603,38 @@ class HeadlessSlicer:
                 "superior", "inferior"); None keeps the current camera.
             reset_camera: fit the camera to the volume after a first render (the volume's bounds are only known
                 then). Disable to keep a camera that was set up by hand.
+            frame: then narrow the camera onto what the picture shows (:func:`frame_content`) and render again, so
+                the content fills the picture with a small margin (the camera stays narrowed afterwards).
 
         Returns:
             ``(height, width, 3)`` uint8 RGB array, row 0 at the top of the picture.
         """
         self._check_open()
-        from vtkmodules.util import numpy_support
-        from vtkmodules.vtkRenderingCore import vtkWindowToImageFilter
+        picture = self._render(view, reset_camera)
+        if frame and self.camera_node is not None:
+            if frame_content(self.camera_node.GetCamera(), picture, backdrop=self.backdrop()):
+                picture = self._render(None, False)
+        return picture
 
+    def backdrop(self) -> np.ndarray:
+        """The picture of the empty view (its backdrop): ``(height, width, 3)`` uint8, rendered with every volume
+        hidden. Compare a picture with it to tell content from backdrop (:func:`content_box`)."""
+        self._check_open()
+        if self._background is not None:
+            color = np.round(255.0 * np.clip(self._background, 0.0, 1.0)).astype(np.uint8)
+            return np.broadcast_to(color, (self._size[1], self._size[0], 3)).copy()
+        hidden = self.rendered_volumes()
+        for prop in hidden:
+            prop.SetVisibility(False)
+        try:
+            self.render_window.Render()
+            return self._grab()
+        finally:
+            for prop in hidden:
+                prop.SetVisibility(True)
+
+    def _render(self, view: str | None, reset_camera: bool) -> np.ndarray:
+        """Point the camera (``view``), render, fit the camera when asked, and return the picture."""
         self._apply_view_settings()
         camera_node = self.camera_node
         if view is not None:
@@ -470,6 +647,12 @@ class HeadlessSlicer:
         if reset_camera:
             self.reset_camera()
             self.render_window.Render()
+        return self._grab()
+
+    def _grab(self) -> np.ndarray:
+        """The last rendered picture as ``(height, width, 3)`` uint8 RGB, row 0 at the top."""
+        from vtkmodules.util import numpy_support
+        from vtkmodules.vtkRenderingCore import vtkWindowToImageFilter
 
         grabber = vtkWindowToImageFilter()
         grabber.SetInput(self.render_window)

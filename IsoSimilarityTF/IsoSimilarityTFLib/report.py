@@ -25,7 +25,7 @@ import numpy as np
 from .classes import IsovalueClass
 from .design import DEFAULT_OPTIONS, TransferFunctionDesign, design_transfer_function
 from .pictures import similarity_image
-from .rendering import VIEW_DIRECTIONS, slicer_core_available
+from .rendering import BACKDROPS, RAY_CASTING, VIEW_DIRECTIONS, slicer_core_available
 from .volume_io import Volume, read_volume
 
 PathLike = Union[str, "os.PathLike[str]"]
@@ -48,6 +48,8 @@ SCENE_FOLDER = "scene"
 
 DEFAULT_VIEW = "anterior"
 DEFAULT_SIZE = 512
+DEFAULT_BACKDROP = "black"
+DEFAULT_RAY_CASTING = "cpu"
 MIN_SIZE = 32
 DEFAULT_PHANTOM_SIZE = 128
 
@@ -404,38 +406,6 @@ def shown_classes(design: TransferFunctionDesign) -> list[IsovalueClass]:
     return sorted((c for c in design.classes if design.is_shown(c.id)), key=lambda c: c.rank)
 
 
-def content_box(picture: np.ndarray, threshold: int = 10) -> Optional[tuple[int, int, int, int]]:
-    """``(row0, row1, column0, column1)`` (inclusive) of the pixels brighter than ``threshold``, or None."""
-    rows = np.flatnonzero(picture.max(axis=2).max(axis=1) > threshold)
-    columns = np.flatnonzero(picture.max(axis=2).max(axis=0) > threshold)
-    if rows.size == 0:
-        return None
-    return int(rows[0]), int(rows[-1]), int(columns[0]), int(columns[-1])
-
-
-def frame_content(camera, picture: np.ndarray, margin: float = 0.04) -> None:
-    """Narrow a ``vtkCamera`` so that what ``picture`` (rendered with it) shows fills the view, plus a margin.
-
-    The camera keeps its position and direction: its view angle shrinks and its window centre moves onto the
-    content, so every class tile shows the volume as large as possible and all tiles share one framing.
-    """
-    box = content_box(picture)
-    if box is None:
-        return
-    height, width = picture.shape[:2]
-    row0, row1, column0, column1 = box
-    side = max(row1 - row0 + 1, column1 - column0 + 1) * (1.0 + margin)
-    factor = min(width, height) / side
-    if factor <= 1.0:
-        return
-    # Content centre in normalized device coordinates (-1..1, y up), before zooming.
-    centre_x = (column0 + column1 + 1) / width - 1.0
-    centre_y = 1.0 - (row0 + row1 + 1) / height
-    half_angle = math.radians(camera.GetViewAngle()) / 2.0
-    camera.SetViewAngle(math.degrees(2.0 * math.atan(math.tan(half_angle) / factor)))
-    camera.SetWindowCenter(centre_x * factor, centre_y * factor)
-
-
 def render_outputs(
     result: RunResult,
     *,
@@ -443,13 +413,20 @@ def render_outputs(
     size: int = DEFAULT_SIZE,
     tile_size: Optional[int] = None,
     progress: Optional[ProgressPrinter] = None,
+    backdrop: str = DEFAULT_BACKDROP,
+    ray_casting: str = DEFAULT_RAY_CASTING,
 ) -> None:
     """Render with Slicer's volume rendering (headless): render.png, classes.png, and save the Slicer scene.
 
-    One headless Slicer serves all pictures: the design goes onto the volume through :func:`mrml.apply_design`,
-    each class tile shows ``design.solo(class)`` written into the same property node in place, seen from the camera
-    of the main picture narrowed onto the volume (:func:`frame_content`). The scene is saved after solo mode is left
-    and the camera restored, so it shows the full transfer function as in render.png.
+    One headless Slicer serves all pictures: the design goes onto the volume through :func:`mrml.apply_design`;
+    render.png is framed to its content (:func:`frame_content`: the volume fills the picture with a small margin),
+    and each class tile shows ``design.solo(class)`` written into the same property node in place, seen from the
+    same narrowed camera. The scene is saved after solo mode is left, so it shows the full transfer function as in
+    render.png.
+
+    Args:
+        backdrop: "black" or "slicer" (Slicer's blue gradient), see :data:`BACKDROPS`.
+        ray_casting: "cpu" or "gpu", see :data:`RAY_CASTING`.
     """
     from .mrml import apply_design, update_property_node
     from .rendering import HeadlessSlicer, write_png
@@ -458,12 +435,13 @@ def render_outputs(
     tile_size = tile_size or max(MIN_SIZE, size // 2)
     classes = shown_classes(design)
     decimals = value_decimals(design.value_range, design.n_bins)
-    with HeadlessSlicer(size=(size, size)) as headless:
+    background = (0.0, 0.0, 0.0) if backdrop == "black" else None
+    with HeadlessSlicer(size=(size, size), rendering_method=ray_casting, background=background) as headless:
         volume_node = headless.add_volume(volume.values, name=volume.name, ijk_to_ras=volume.ijk_to_ras())
         property_node = apply_design(volume_node, design, headless.volume_rendering_logic)
         if progress is not None:
             progress.update("render.png")
-        picture = headless.render(view)
+        picture = headless.render(view, frame=True)
         path = outdir / OUTPUT_FILES["render_png"]
         write_png(picture, path)
         result.files["render_png"] = path
@@ -472,11 +450,7 @@ def render_outputs(
             headless.render_window.SetSize(tile_size, tile_size)
             tiles, labels, colors = [], [], []
             previous_solo = design.solo_class
-            camera = headless.camera_node.GetCamera() if headless.camera_node is not None else None
-            saved_camera = (camera.GetViewAngle(), camera.GetWindowCenter()) if camera is not None else None
             try:
-                if camera is not None:
-                    frame_content(camera, picture)
                 for number, item in enumerate(classes, 1):
                     if progress is not None:
                         progress.update(f"class {number} of {len(classes)}")
@@ -488,9 +462,6 @@ def render_outputs(
             finally:
                 design.solo(previous_solo)
                 update_property_node(property_node, design)
-                if camera is not None and saved_camera is not None:
-                    camera.SetViewAngle(saved_camera[0])
-                    camera.SetWindowCenter(*saved_camera[1])
                 headless.render_window.SetSize(size, size)
             path = outdir / OUTPUT_FILES["classes_png"]
             write_png(class_grid(tiles, labels, colors), path)
@@ -519,6 +490,8 @@ def run(
     seed: int = 0,
     progress: Optional[ProgressPrinter] = None,
     warn: Optional[Callable[[str], None]] = None,
+    backdrop: str = DEFAULT_BACKDROP,
+    ray_casting: str = DEFAULT_RAY_CASTING,
 ) -> RunResult:
     """Read ``source``, design its transfer function and fill ``outdir``.
 
@@ -533,6 +506,8 @@ def run(
         phantom_size, seed: voxels per axis and seed of the phantom.
         progress: stage printer.
         warn: called with each warning line.
+        backdrop: 3D view backdrop of the pictures, "black" or "slicer" (see ``BACKDROPS``).
+        ray_casting: "cpu" (default, reproducible) or "gpu" (see ``RAY_CASTING``).
 
     Raises:
         UsageError, VolumeReadError, ValueError: bad output path, input or option (a usage or input error).
@@ -543,6 +518,10 @@ def run(
         raise UsageError(f"view must be one of {', '.join(VIEW_DIRECTIONS)}; got {view!r}")
     if size < MIN_SIZE:
         raise UsageError(f"size must be at least {MIN_SIZE} pixels; got {size}")
+    if backdrop not in BACKDROPS:
+        raise UsageError(f"backdrop must be one of {', '.join(BACKDROPS)}; got {backdrop!r}")
+    if ray_casting not in RAY_CASTING:
+        raise UsageError(f"ray casting must be one of {', '.join(RAY_CASTING)}; got {ray_casting!r}")
     options = {**DEFAULT_OPTIONS, **(options or {})}
     warnings: list[str] = []
 
@@ -580,7 +559,7 @@ def run(
         start = time.perf_counter()
         progress.stage("rendering", "(Slicer volume rendering, headless)")
         try:
-            render_outputs(result, view=view, size=size, progress=progress)
+            render_outputs(result, view=view, size=size, progress=progress, backdrop=backdrop, ray_casting=ray_casting)
         except (RuntimeError, OSError, ValueError) as error:
             raise RenderError(
                 f"rendering failed ({error}); the other outputs are in '{path}' (use --no-render to skip rendering)"

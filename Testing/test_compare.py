@@ -1,0 +1,230 @@
+"""Tests of the first-click benchmark's pieces: picture metrics, presets.xml reading, tissue ray casting, verdicts.
+
+Slicer's presets.xml is never needed: the tests write a tiny presets file of their own.
+"""
+
+import importlib
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+def _load(name):
+    """Import a module of benchmarks/ (its folder on sys.path, as when the scripts run)."""
+    if str(BENCHMARKS) not in sys.path:
+        sys.path.insert(0, str(BENCHMARKS))
+    return importlib.import_module(name)
+
+
+metrics = _load("picture_metrics")
+presets = _load("slicer_presets")
+tissues = _load("tissue_visibility")
+
+
+def _canvas(size=32, color=(0, 0, 0)):
+    picture = np.empty((size, size, 3), dtype=np.uint8)
+    picture[:] = color
+    return picture
+
+
+# ------------------------------------------------------------------------------------------------ picture metrics
+
+
+def test_foreground_is_what_differs_from_the_backdrop():
+    picture = _canvas(color=(10, 20, 30))
+    picture[4:8, 4:12] = (200, 200, 200)
+    picture[20, 20] = (13, 22, 33)  # within the tolerance: still backdrop
+    mask = metrics.foreground_mask(picture, backdrop=(10, 20, 30))
+    assert mask.sum() == 4 * 8
+    assert mask[4:8, 4:12].all()
+
+
+def test_foreground_against_a_gradient_backdrop_picture():
+    backdrop = np.repeat(np.linspace(60, 200, 32).astype(np.uint8)[:, None], 32, axis=1)[..., None].repeat(3, 2)
+    picture = backdrop.copy()
+    picture[10:14, 10:14] = (255, 0, 0)
+    assert metrics.foreground_mask(picture, backdrop).sum() == 16
+
+
+def test_brightness_is_mean_luma_over_the_foreground_only():
+    picture = _canvas()
+    picture[:8, :8] = (255, 255, 255)
+    picture[8:16, :8] = (100, 100, 100)
+    result = metrics.picture_metrics(picture)
+    assert result["brightness"] == pytest.approx((255 + 100) / 2)
+    assert result["coverage"] == pytest.approx(128 / 32**2)
+
+
+def test_luma_and_chroma_follow_bt601():
+    picture = np.array([[[255, 0, 0], [128, 128, 128]]], dtype=np.uint8)
+    assert metrics.luma(picture)[0, 0] == pytest.approx(0.299 * 255)
+    cb, cr = metrics.chroma(picture)[0, 0]
+    assert cb == pytest.approx(-0.168736 * 255) and cr == pytest.approx(0.5 * 255)
+    assert np.allclose(metrics.chroma(picture)[0, 1], 0.0, atol=1e-9)  # grey has no chroma
+
+
+def test_uniform_colour_has_no_colour_noise_even_at_its_silhouette():
+    picture = _canvas()
+    picture[6:26, 6:26] = (200, 120, 40)  # one orange disc-like square on black
+    assert metrics.picture_metrics(picture)["colour_noise"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_alternating_hues_are_noisier_than_a_smooth_hue_ramp():
+    rainbow = _canvas()
+    rainbow[:, ::2] = (220, 60, 60)
+    rainbow[:, 1::2] = (60, 60, 220)
+    ramp = _canvas()
+    ramp[:] = np.stack(np.broadcast_arrays(np.linspace(60, 220, 32)[None, :], 60, 120), -1).astype(np.uint8)
+    noisy = metrics.picture_metrics(rainbow)["colour_noise"]
+    smooth = metrics.picture_metrics(ramp)["colour_noise"]
+    assert noisy > 40.0
+    assert smooth < 2.0
+
+
+def test_grey_texture_is_not_colour_noise():
+    rng = np.random.default_rng(0)
+    grey = rng.integers(30, 255, size=(32, 32), dtype=np.uint8)
+    picture = np.repeat(grey[..., None], 3, axis=2)
+    assert metrics.picture_metrics(picture)["colour_noise"] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_empty_picture_measures_zero():
+    assert metrics.picture_metrics(_canvas()) == {"brightness": 0.0, "colour_noise": 0.0, "coverage": 0.0}
+
+
+def test_box_sum_matches_a_direct_sum():
+    rng = np.random.default_rng(1)
+    image = rng.random((9, 11))
+    result = metrics.box_sum(image, 5)
+    padded = np.pad(image, 2)
+    direct = np.array([[padded[r : r + 5, c : c + 5].sum() for c in range(11)] for r in range(9)])
+    assert np.allclose(result, direct)
+    with pytest.raises(ValueError):
+        metrics.box_sum(image, 4)
+
+
+def test_resize_area_keeps_the_mean_and_the_shape():
+    rng = np.random.default_rng(2)
+    picture = rng.integers(0, 256, size=(512, 512, 3), dtype=np.uint8)
+    small = metrics.resize_area(picture, 384, 384)
+    assert small.shape == (384, 384, 3) and small.dtype == np.uint8
+    assert abs(small.astype(float).mean() - picture.astype(float).mean()) < 0.5
+
+
+# ------------------------------------------------------------------------------------------------ presets.xml
+
+TINY_PRESETS = """<?xml version="1.0" encoding="UTF-8"?>
+<MRML>
+  <VolumeProperty name="Ramp-A" interpolation="1" shade="1" ambient="0.2" diffuse="0.9" specular="0.1"
+    specularPower="10" scalarOpacity="6 0 0 50 0.5 100 1" gradientOpacity="4 0 1 255 1"
+    colorTransfer="8 0 0 0 0 100 1 0.5 0.25" effectiveRange="0 100"/>
+  <VolumeProperty name="Broken-Range" scalarOpacity="4 -10 0 10 1" colorTransfer="4 0 1 1 1"
+    effectiveRange="-250.0.0 1550.0"/>
+</MRML>
+"""
+
+
+def _write_presets(folder: Path) -> Path:
+    path = folder / "presets.xml"
+    path.write_text(TINY_PRESETS, encoding="utf-8")
+    return path
+
+
+def test_read_presets_parses_functions_range_and_shading(tmp_path):
+    read = presets.read_presets(_write_presets(tmp_path))
+    assert list(read) == ["Ramp-A", "Broken-Range"]
+    ramp = read["Ramp-A"]
+    assert ramp.scalar_opacity.tolist() == [[0, 0], [50, 0.5], [100, 1]]
+    assert ramp.color.tolist() == [[0, 0, 0, 0], [100, 1, 0.5, 0.25]]
+    assert ramp.gradient_opacity.tolist() == [[0, 1], [255, 1]]
+    assert ramp.effective_range == (0.0, 100.0)
+    assert ramp.shading["specularPower"] == 10.0
+    assert read["Broken-Range"].effective_range is None  # malformed in Slicer's own file: kept as unknown
+
+
+def test_parse_function_rejects_a_wrong_count():
+    with pytest.raises(ValueError):
+        presets.parse_function("5 0 0 1 1", 2)
+    assert presets.parse_function("", 2).shape == (0, 2)
+
+
+def test_find_presets_order_explicit_then_environment_then_shared(tmp_path, monkeypatch):
+    explicit = _write_presets(tmp_path)
+    env_dir = tmp_path / "env"
+    env_dir.mkdir()
+    from_env = _write_presets(env_dir)
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    (tmp_path / "shared").mkdir()
+    shared = _write_presets(tmp_path / "shared")
+    no_mirror = tmp_path / "no-mirror"
+
+    monkeypatch.setenv(presets.PRESETS_ENV, str(from_env))
+    assert presets.find_presets(str(explicit), repo, mirror=no_mirror).path == explicit.resolve()
+    assert presets.find_presets(None, repo, mirror=no_mirror).path == from_env.resolve()
+    monkeypatch.delenv(presets.PRESETS_ENV)
+    assert presets.find_presets(None, repo, mirror=no_mirror).path == shared.resolve()
+
+
+def test_find_presets_without_any_says_how_to_provide_it(tmp_path, monkeypatch):
+    monkeypatch.delenv(presets.PRESETS_ENV, raising=False)
+    with pytest.raises(presets.PresetsNotFound) as error:
+        presets.find_presets(None, tmp_path / "repo", mirror=tmp_path / "no-mirror")
+    message = str(error.value)
+    assert "PRESETS=" in message and "\n" not in message
+    with pytest.raises(presets.PresetsNotFound):
+        presets.find_presets(str(tmp_path / "missing.xml"), None, mirror=tmp_path / "no-mirror")
+
+
+# ------------------------------------------------------------------------------------------------ tissue ray casting
+
+
+def test_ray_axis_follows_the_ijk_to_ras_matrix():
+    identity = np.eye(4)
+    assert tissues.ray_axis(identity, "anterior") == (1, True)  # rays enter at high j (anterior) going posterior
+    assert tissues.ray_axis(identity, "left") == (2, False)  # from the patient's left (-x) towards +x
+    flipped = np.diag([-1.0, -1.0, 1.0, 1.0])  # LPS-like storage
+    assert tissues.ray_axis(flipped, "anterior") == (1, False)
+    assert tissues.ray_axis(flipped, "left") == (2, True)
+
+
+def test_opaque_shell_hides_what_is_behind_it():
+    labels = np.zeros((4, 4, 10), dtype=np.uint8)
+    labels[..., 2] = 1  # a thin "skull" plane seen first from the left (i = 0 side)
+    labels[..., 5:8] = 2  # "brain" behind it
+    values = np.where(labels == 1, 1000.0, np.where(labels == 2, 40.0, -1000.0))
+    opaque_bone = tissues.piecewise_linear(np.array([[-1000, 0], [500, 0], [501, 1], [2000, 1]]))
+    weights, crosses = tissues.tissue_weights(values, labels, 3, opaque_bone, (1, 1, 1), axis=2, reverse=False)
+    summary = tissues.tissue_summary(weights, crosses, ("air", "skull", "brain"))
+    assert summary["skull"]["visibility"] == pytest.approx(1.0)
+    assert summary["skull"]["share"] == pytest.approx(1.0)
+    assert summary["brain"]["visibility"] == 0.0
+    # From the other side the brain is in front but clear: the skull still makes the picture.
+    weights, crosses = tissues.tissue_weights(values, labels, 3, opaque_bone, (1, 1, 1), axis=2, reverse=True)
+    assert tissues.tissue_summary(weights, crosses, ("air", "skull", "brain"))["skull"]["share"] == 1.0
+
+
+def test_opacity_is_per_unit_distance():
+    labels = np.ones((1, 1, 20), dtype=np.uint8)
+    values = np.zeros((1, 1, 20))
+    half = tissues.piecewise_linear(np.array([[0.0, 0.1], [1.0, 0.1]]))
+    fine, _ = tissues.tissue_weights(values, labels, 2, half, (0.5, 1, 1), axis=2, reverse=False)
+    coarse, _ = tissues.tissue_weights(values[..., :10], labels[..., :10], 2, half, (1.0, 1, 1), 2, False)
+    # 10 mm of the same material, sampled every 0.5 mm or every 1 mm, gives the same opacity.
+    assert fine.sum() == pytest.approx(coarse.sum()) == pytest.approx(1 - 0.9**10)
+
+
+# ------------------------------------------------------------------------------------------------ verdicts
+
+
+def test_verdict_applies_the_issue_targets():
+    compare = _load("compare")
+    assert compare.verdict(0.8, 1.3)
+    assert not compare.verdict(0.79, 1.0)
+    assert not compare.verdict(1.0, 1.31)
+    assert not compare.verdict(None, 1.0)
+    assert compare.ratio(2.0, 4.0) == 0.5 and compare.ratio(1.0, 0.0) is None

@@ -1,0 +1,539 @@
+"""First-click benchmark (issue 9): our default transfer function against Slicer's own first click and presets.
+
+Usage::
+
+    make compare                                  # or: .venv/bin/python benchmarks/compare.py
+    make compare PRESETS=/path/to/presets.xml     # Slicer's presets.xml from elsewhere
+
+For each volume (the built-in phantom, with ground-truth tissue labels; the InVesalius head CT; the Colin27 T1 with
+scalp; the skull-stripped Colin27) and each view (anterior, left), one headless Slicer (real MRML scene, Slicer's
+volume rendering logic with Slicer's presets.xml loaded, CPU ray casting, black backdrop) renders:
+
+- **ours**: ``design_transfer_function(values, spacing)`` with its defaults, shown through ``mrml.apply_design``;
+- **Slicer's first click**: the property ``vtkSlicerVolumeRenderingLogic::CreateDefaultVolumeRenderingNodes``
+  gives a new volume: ``UpdateDisplayNodeFromVolumeNode`` (a ramp from the volume's window/level), then
+  ``SetRecommendedVolumeRenderingProperties``, which copies a preset unchanged: "US-Fetal" for 8-bit data, else
+  "MR-Default" for a value range of 50-1500, "CT-Chest-Contrast-Enhanced" for 1500-10000;
+- **the best-suited presets** (CT-AAA and CT-Bone for CT, MR-Default for MRI), applied as the module's preset menu
+  does (``qSlicerVolumeRenderingPresetComboBox::applyPreset``): ``CopyContent`` of the preset node into the shown
+  property node, the shift slider reset to 0. Slicer does not move a preset to the volume's range; the user can
+  drag the shift slider. So the presets are rendered unshifted, at their own (absolute) values.
+
+All looks of one view share one camera: fitted to the volume (Slicer's reset), then narrowed onto the union of what
+the looks show (a quarter-size probe render of each), so the head fills the pictures with a small margin.
+
+Measures (``picture_metrics``): brightness, colour noise, coverage over the foreground (pixels that differ from the
+backdrop). On the phantom, per tissue: share of the picture and visibility (``tissue_visibility``). With GPU ray
+casting available, each transfer function is also rendered once by the GPU ray caster with VTK's messages captured,
+to record whether it triggers the lookup-table fallback warning.
+
+Outputs in ``benchmarks/results/``: ``compare-<volume>.png`` (rows = views, columns = looks, labelled),
+``compare.md`` and ``compare.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+
+HERE = Path(__file__).resolve().parent
+if str(HERE) not in sys.path:
+    sys.path.insert(0, str(HERE))
+
+from picture_metrics import picture_metrics, resize_area  # noqa: E402
+from slicer_presets import ATTRIBUTION, PresetsNotFound, PresetsSource, find_presets, read_presets  # noqa: E402
+from tissue_visibility import property_functions, ray_axis, tissue_summary, tissue_weights  # noqa: E402
+
+REPO = HERE.parent
+RESULTS = HERE / "results"
+VIEWS = ("anterior", "left")
+OURS = "ours"
+FIRST_CLICK = "first click"
+
+#: The issue's targets, against the best-suited preset of each volume and view.
+MAX_NOISE_RATIO = 1.3
+MIN_BRIGHTNESS_RATIO = 0.8
+
+CT_PRESETS = ("CT-AAA", "CT-Bone")
+MR_PRESETS = ("MR-Default",)
+
+
+@dataclass
+class Case:
+    """A volume of the benchmark.
+
+    Attributes:
+        key: short name (file names). title: shown on the montage. kind: "CT" or "MRI".
+        load: returns ``(values [k, j, i], ijk_to_ras 4x4, labels or None, tissue names or None)``.
+        presets: the suited presets; ``best``: the one the targets compare with.
+        source: where the data comes from.
+    """
+
+    key: str
+    title: str
+    kind: str
+    load: Callable[[], tuple]
+    presets: tuple[str, ...]
+    best: str
+    source: str
+    available: Callable[[], bool] = field(default=lambda: True)
+
+
+def _phantom() -> tuple:
+    from IsoSimilarityTFLib.phantom import TISSUES, head_phantom
+    from IsoSimilarityTFLib.report import load_input
+
+    volume = load_input("phantom")
+    labels = head_phantom(volume.values.shape[0], seed=0).labels
+    return volume.values, volume.ijk_to_ras(), labels, TISSUES
+
+
+def _file(path: str) -> Callable[[], tuple]:
+    def load() -> tuple:
+        from IsoSimilarityTFLib.volume_io import read_volume
+
+        volume = read_volume(path)
+        return volume.values, volume.ijk_to_ras(), None, None
+
+    return load
+
+
+HEAD_CT = "/usr/share/doc/invesalius-examples/examples/Cranium.inv3"
+COLIN = "/usr/share/mricron/templates/ch2.nii.gz"
+COLIN_BET = "/usr/share/mricron/templates/ch2bet.nii.gz"
+
+CASES = (
+    Case("phantom", "Phantom (CT-like, HU, 128^3)", "CT", _phantom, CT_PRESETS, "CT-Bone", "isosimtf phantom, seed 0"),
+    Case(
+        "head-ct",
+        "Head CT (InVesalius Cranium, HU)",
+        "CT",
+        _file(HEAD_CT),
+        CT_PRESETS,
+        "CT-Bone",
+        f"Debian invesalius-examples, {HEAD_CT}",
+        lambda: Path(HEAD_CT).is_file(),
+    ),
+    Case(
+        "colin27",
+        "Colin27 T1 with scalp (uint8)",
+        "MRI",
+        _file(COLIN),
+        MR_PRESETS,
+        "MR-Default",
+        f"Debian mricron-data, {COLIN}",
+        lambda: Path(COLIN).is_file(),
+    ),
+    Case(
+        "colin27-bet",
+        "Colin27 T1 skull-stripped (uint8)",
+        "MRI",
+        _file(COLIN_BET),
+        MR_PRESETS,
+        "MR-Default",
+        f"Debian mricron-data, {COLIN_BET}",
+        lambda: Path(COLIN_BET).is_file(),
+    ),
+)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Rendering
+# ---------------------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Look:
+    """One transfer function shown for a volume: its column title and its property node."""
+
+    name: str
+    title: str
+    property_node: Any
+
+
+def prepare_looks(headless: Any, volume_node: Any, values: np.ndarray, spacing, presets: Sequence[str]) -> list[Look]:
+    """Slicer's first click, ours and the presets as property nodes of one scene (the first click first made)."""
+    from IsoSimilarityTFLib import design_transfer_function
+    from IsoSimilarityTFLib.mrml import apply_design
+
+    logic = headless.volume_rendering_logic
+    display_node = logic.CreateDefaultVolumeRenderingNodes(volume_node)  # Slicer's first click
+    first = display_node.GetVolumePropertyNode()
+    picked = first.GetName() if logic.GetPresetByName(first.GetName()) is not None else "window/level ramp"
+    first_look = Look(FIRST_CLICK, f"Slicer first click ({picked})", first)
+    first_look.picked = picked  # type: ignore[attr-defined]
+
+    design = design_transfer_function(values, spacing)
+    ours = Look(OURS, "ours (default)", apply_design(volume_node, design, logic))
+    ours.design = design  # type: ignore[attr-defined]
+
+    looks = [ours, first_look]
+    for name in presets:
+        preset = logic.GetPresetByName(name)
+        if preset is None:
+            continue
+        node = headless.scene.AddNewNodeByClass("vtkMRMLVolumePropertyNode", name)
+        node.CopyContent(preset)  # what the preset menu does (qSlicerVolumeRenderingPresetComboBox::applyPreset)
+        looks.append(Look(name, name, node))
+    return looks
+
+
+def show(headless: Any, volume_node: Any, look: Look) -> None:
+    """Point the volume's display node at ``look``'s property node."""
+    display_node = headless.volume_rendering_logic.GetFirstVolumeRenderingDisplayNode(volume_node)
+    display_node.SetAndObserveVolumePropertyNodeID(look.property_node.GetID())
+
+
+def render_view(headless: Any, volume_node: Any, looks: list[Look], view: str, size: int) -> dict[str, np.ndarray]:
+    """Render every look from ``view`` with one camera framed onto the union of what they show."""
+    from IsoSimilarityTFLib.rendering import content_box, frame_content
+
+    probe = max(64, size // 4)
+    headless.render_window.SetSize(probe, probe)
+    boxes, picture = [], None
+    for index, look in enumerate(looks):
+        show(headless, volume_node, look)
+        picture = headless.render(view if index == 0 else None, reset_camera=index == 0)
+        box = content_box(picture)
+        if box is not None:
+            boxes.append(box)
+    if boxes and picture is not None:
+        union = (min(b[0] for b in boxes), max(b[1] for b in boxes), min(b[2] for b in boxes), max(b[3] for b in boxes))
+        frame_content(headless.camera_node.GetCamera(), picture, box=union)
+    headless.render_window.SetSize(size, size)
+    pictures = {}
+    for look in looks:
+        show(headless, volume_node, look)
+        pictures[look.name] = headless.render(None, reset_camera=False)
+    return pictures
+
+
+def gpu_lookup_table_check(values: np.ndarray, ijk_to_ras: np.ndarray, looks: list[Look], presets_file: Path) -> dict:
+    """Render each look once with GPU ray casting (small picture), VTK's messages captured.
+
+    Returns per look name: ``{"fallback": bool, "messages": [...]}``, or ``{"error": text}`` when GPU ray casting
+    is not available.
+    """
+    from IsoSimilarityTFLib.rendering import HeadlessSlicer, captured_vtk_messages, lookup_table_fallbacks
+
+    result: dict[str, Any] = {}
+    try:
+        with HeadlessSlicer(size=(128, 128), rendering_method="gpu", presets_file=presets_file) as gpu:
+            node = gpu.add_volume(values, ijk_to_ras=ijk_to_ras)
+            for look in looks:
+                copy = gpu.scene.AddNewNodeByClass("vtkMRMLVolumePropertyNode", look.name)
+                copy.CopyContent(look.property_node)
+                gpu.show_volume(node, copy)
+                with captured_vtk_messages() as messages:
+                    gpu.render("anterior")
+                fallbacks = lookup_table_fallbacks(messages)
+                result[look.name] = {"fallback": bool(fallbacks), "messages": fallbacks[:2]}
+    except RuntimeError as error:
+        return {"error": str(error)}
+    return result
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Montage
+# ---------------------------------------------------------------------------------------------------------------
+
+MONTAGE_BACKGROUND = (40, 40, 40)
+HEADER_TEXT = (235, 235, 235)
+GOOD, BAD = (120, 220, 120), (240, 120, 110)
+
+
+def metric_line(metrics: dict) -> str:
+    """``B 112 | N 3.4 | C 41%``: brightness, colour noise, coverage."""
+    return f"B {metrics['brightness']:.0f} | N {metrics['colour_noise']:.2f} | C {100 * metrics['coverage']:.0f}%"
+
+
+def montage(
+    title: str,
+    pictures: dict[tuple[str, str], np.ndarray],
+    metrics: dict[tuple[str, str], dict],
+    views: Sequence[str],
+    columns: Sequence[tuple[str, str]],
+    tile: int = 384,
+) -> np.ndarray:
+    """A labelled grid: one row per view, one column per look (``(name, title)``), metrics under each tile."""
+    from IsoSimilarityTFLib.report import draw_text
+
+    gap, left, head, foot, top = 6, 84, 26, 22, 34
+    width = left + len(columns) * (tile + gap) + gap
+    height = top + head + len(views) * (tile + foot + gap) + gap
+    image = np.empty((height, width, 3), dtype=np.uint8)
+    image[:] = MONTAGE_BACKGROUND
+    draw_text(image, title, 8, 8, 18, HEADER_TEXT)
+    for column, (_, label) in enumerate(columns):
+        draw_text(image, label, left + column * (tile + gap) + 4, top + 4, 15, HEADER_TEXT)
+    for row, view in enumerate(views):
+        y = top + head + row * (tile + foot + gap)
+        draw_text(image, view, 8, y + tile // 2 - 8, 16, HEADER_TEXT)
+        for column, (name, _) in enumerate(columns):
+            x = left + column * (tile + gap)
+            picture = pictures.get((view, name))
+            if picture is None:
+                continue
+            image[y : y + tile, x : x + tile] = resize_area(picture, tile, tile)
+            draw_text(image, metric_line(metrics[(view, name)]), x + 4, y + tile + 3, 13, HEADER_TEXT)
+    return image
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Run
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def ratio(ours: float, reference: float) -> float | None:
+    """``ours / reference``, None when the reference is 0."""
+    return float(ours / reference) if reference else None
+
+
+def verdict(brightness_ratio: float | None, noise_ratio: float | None) -> bool:
+    """Whether a picture meets the issue's targets (brightness >= 0.8x, colour noise <= 1.3x the best preset's)."""
+    if brightness_ratio is None or noise_ratio is None:
+        return False
+    return brightness_ratio >= MIN_BRIGHTNESS_RATIO and noise_ratio <= MAX_NOISE_RATIO
+
+
+def run_case(case: Case, presets: PresetsSource, size: int, gpu: bool) -> dict:
+    """Render and measure one volume; write its montage; return its numbers."""
+    from IsoSimilarityTFLib.rendering import HeadlessSlicer, write_png
+
+    started = time.perf_counter()
+    values, ijk_to_ras, labels, tissues = case.load()
+    spacing = tuple(float(s) for s in np.linalg.norm(np.asarray(ijk_to_ras)[:3, :3], axis=0))
+    pictures: dict[tuple[str, str], np.ndarray] = {}
+    with HeadlessSlicer(size=(size, size), presets_file=presets.path) as headless:
+        volume_node = headless.add_volume(values, name=case.key, ijk_to_ras=ijk_to_ras)
+        looks = prepare_looks(headless, volume_node, values, spacing, case.presets)
+        for view in VIEWS:
+            for name, picture in render_view(headless, volume_node, looks, view, size).items():
+                pictures[(view, name)] = picture
+        gpu_check = gpu_lookup_table_check(values, ijk_to_ras, looks, presets.path) if gpu else {"skipped": True}
+        tissue_stats = (
+            tissue_statistics(values, ijk_to_ras, labels, tissues, looks, spacing) if labels is not None else {}
+        )
+        design = looks[0].design  # type: ignore[attr-defined]
+        picked = looks[1].picked  # type: ignore[attr-defined]
+        columns = [(look.name, look.title) for look in looks]
+    metrics = {key: picture_metrics(picture) for key, picture in pictures.items()}
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    montage_path = RESULTS / f"compare-{case.key}.png"
+    write_png(montage(case.title, pictures, metrics, VIEWS, columns), montage_path)
+
+    comparisons = {}
+    for view in VIEWS:
+        ours = metrics[(view, OURS)]
+        per_reference = {}
+        for name, _ in columns[1:]:
+            reference = metrics[(view, name)]
+            b, n = (
+                ratio(ours["brightness"], reference["brightness"]),
+                ratio(ours["colour_noise"], reference["colour_noise"]),
+            )
+            per_reference[name] = {"brightness_ratio": b, "colour_noise_ratio": n, "pass": verdict(b, n)}
+        comparisons[view] = per_reference
+    return {
+        "title": case.title,
+        "kind": case.kind,
+        "source": case.source,
+        "shape": list(values.shape),
+        "dtype": str(values.dtype),
+        "value_range": [float(values.min()), float(values.max())],
+        "spacing": list(spacing),
+        "first_click_preset": picked,
+        "best_preset": case.best,
+        "looks": [{"name": n, "title": t} for n, t in columns],
+        "design": {
+            "n_classes": len(design.classes),
+            "n_shown": sum(1 for c in design.classes if design.is_shown(c.id)),
+            "options": {k: v for k, v in design.options.items() if isinstance(v, (str, int, float, type(None)))},
+        },
+        "metrics": {view: {name: metrics[(view, name)] for name, _ in columns} for view in VIEWS},
+        "ratios": comparisons,
+        "tissues": tissue_stats,
+        "gpu_lookup_table": gpu_check,
+        "montage": montage_path.relative_to(REPO).as_posix(),
+        "seconds": round(time.perf_counter() - started, 1),
+    }
+
+
+def tissue_statistics(values, ijk_to_ras, labels, tissues, looks: list[Look], spacing) -> dict:
+    """Per view and look: each ground-truth tissue's share of the picture and visibility (``tissue_visibility``)."""
+    result: dict[str, dict] = {}
+    for view in VIEWS:
+        axis, reverse = ray_axis(ijk_to_ras, view)
+        result[view] = {}
+        for look in looks:
+            opacity, gradient, unit = property_functions(look.property_node.GetVolumeProperty())
+            weights, crosses = tissue_weights(
+                values, labels, len(tissues), opacity, spacing, axis, reverse, unit, gradient
+            )
+            result[view][look.name] = tissue_summary(weights, crosses, tissues)
+    return result
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Report
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def _fmt(value: float | None, digits: int = 2) -> str:
+    return "n/a" if value is None else f"{value:.{digits}f}"
+
+
+def markdown(document: dict) -> str:
+    """compare.md: settings, per-volume metrics and ratios with pass/fail, phantom tissues, GPU warnings."""
+    lines = [
+        "# First click: ours against Slicer's first click and presets",
+        "",
+        f"Made by `make compare` on {document['date']} ({document['seconds']:.0f} s; {document['renderer']}). "
+        f"Pictures {document['size']}x{document['size']}, black backdrop, one camera per volume and view "
+        "(fitted, then narrowed onto the union of what all looks show).",
+        "",
+        f"{ATTRIBUTION} Source used: {document['presets_source']}.",
+        "",
+        "Metrics over the foreground (pixels that differ from the backdrop): **B** brightness = mean BT.601 luma "
+        "(0-255); **N** colour noise = mean |(Cb, Cr) - its 5x5 local mean| (0-255 chroma units); **C** coverage = "
+        "foreground share of the picture. Targets (issue 9): N <= 1.3x and B >= 0.8x those of the best-suited "
+        "preset, on every volume and view.",
+        "",
+        "Slicer's first click = `CreateDefaultVolumeRenderingNodes` (window/level ramp, then "
+        "`SetRecommendedVolumeRenderingProperties`: US-Fetal for 8-bit data, MR-Default for a range of 50-1500, "
+        "CT-Chest-Contrast-Enhanced for 1500-10000). Presets are applied as Slicer's preset menu does (`CopyContent`, "
+        "shift 0): Slicer does not move a preset to the volume's range.",
+        "",
+        "## Summary: ours / best-suited preset",
+        "",
+        "| volume | view | best preset | B ours | B preset | B ratio | N ours | N preset | N ratio | target |",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---|",
+    ]
+    for key, case in document["volumes"].items():
+        best = case["best_preset"]
+        for view in VIEWS:
+            ours, preset = case["metrics"][view][OURS], case["metrics"][view].get(best)
+            r = case["ratios"][view].get(best)
+            if preset is None or r is None:
+                continue
+            lines.append(
+                f"| {key} | {view} | {best} | {ours['brightness']:.1f} | {preset['brightness']:.1f} | "
+                f"{_fmt(r['brightness_ratio'])} | {ours['colour_noise']:.2f} | {preset['colour_noise']:.2f} | "
+                f"{_fmt(r['colour_noise_ratio'])} | {'pass' if r['pass'] else '**fail**'} |"
+            )
+    for key, case in document["volumes"].items():
+        lines += [
+            "",
+            f"## {case['title']}",
+            "",
+            f"`{case['montage']}`: {case['source']}; {case['dtype']}, values {case['value_range'][0]:g} .. "
+            f"{case['value_range'][1]:g}; Slicer's first click picks **{case['first_click_preset']}**. "
+            f"Ours: {case['design']['n_shown']} of {case['design']['n_classes']} classes shown.",
+            "",
+            f"![{key}]({Path(case['montage']).name})",
+            "",
+            "| look | view | B | N | C | B ours/this | N ours/this | GPU LUT fallback |",
+            "|---|---|---:|---:|---:|---:|---:|---|",
+        ]
+        gpu = case["gpu_lookup_table"]
+        for look in case["looks"]:
+            for view in VIEWS:
+                m = case["metrics"][view][look["name"]]
+                r = case["ratios"][view].get(look["name"], {})
+                fallback = gpu.get(look["name"], {}).get("fallback") if isinstance(gpu, dict) else None
+                gpu_text = "n/a" if fallback is None else ("**yes**" if fallback else "no")
+                lines.append(
+                    f"| {look['title']} | {view} | {m['brightness']:.1f} | {m['colour_noise']:.2f} | "
+                    f"{100 * m['coverage']:.1f}% | {_fmt(r.get('brightness_ratio'))} | "
+                    f"{_fmt(r.get('colour_noise_ratio'))} | {gpu_text} |"
+                )
+        if case["tissues"]:
+            lines += tissue_table(case)
+    lines.append("")
+    return "\n".join(lines)
+
+
+def tissue_table(case: dict) -> list[str]:
+    """Markdown rows: per look and view, each tissue's visibility and share of the picture (phantom only)."""
+    names = [n for n in next(iter(next(iter(case["tissues"].values())).values()))]
+    lines = [
+        "",
+        "Ground-truth tissues (independent orthographic ray casting of the same opacity functions over the phantom's "
+        "labels, see `benchmarks/tissue_visibility.py`): **visibility** = mean weight the tissue gets in the pixels "
+        "whose ray crosses it (1 = seen opaque wherever it projects, 0 = hidden); **share** = its part of what the "
+        "picture shows (the weights add up to each pixel's opacity). Cells: visibility / share, in %.",
+        "",
+        "| look | view | " + " | ".join(names) + " |",
+        "|---|---|" + "---:|" * len(names),
+    ]
+    for look in case["looks"]:
+        for view in VIEWS:
+            stats = case["tissues"][view][look["name"]]
+            cells = [f"{100 * stats[n]['visibility']:.0f} / {100 * stats[n]['share']:.0f}" for n in names]
+            lines.append(f"| {look['title']} | {view} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--presets", help="Slicer's presets.xml (default: $ISOSIMTF_PRESETS, ../shared, the mirror)")
+    parser.add_argument("--size", type=int, default=512, help="picture side in pixels (default %(default)s)")
+    parser.add_argument("--volumes", nargs="*", help="only these volumes: " + ", ".join(c.key for c in CASES))
+    parser.add_argument("--no-gpu", action="store_true", help="skip the GPU lookup-table check")
+    args = parser.parse_args(argv)
+    try:
+        presets = find_presets(args.presets, REPO)
+    except PresetsNotFound as error:
+        print(f"compare: {error}", file=sys.stderr)
+        return 2
+    names = read_presets(presets.path)
+    missing = [n for n in (*CT_PRESETS, *MR_PRESETS, "US-Fetal") if n not in names]
+    if missing:
+        print(f"compare: {presets.path} lacks the presets {', '.join(missing)}", file=sys.stderr)
+        return 2
+    started = time.perf_counter()
+    volumes = {}
+    for case in CASES:
+        if args.volumes and case.key not in args.volumes:
+            continue
+        if not case.available():
+            print(f"compare: skipping {case.key}: {case.source} is not installed", file=sys.stderr)
+            continue
+        print(f"compare: {case.key} ...", file=sys.stderr, flush=True)
+        volumes[case.key] = run_case(case, presets, args.size, gpu=not args.no_gpu)
+        print(f"compare: {case.key} done in {volumes[case.key]['seconds']} s", file=sys.stderr, flush=True)
+    import vtkmodules
+
+    document = {
+        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "seconds": time.perf_counter() - started,
+        "size": args.size,
+        "renderer": f"headless Slicer (slicer-core), CPU ray casting, VTK {vtkmodules.__version__}, "
+        f"{platform.machine()}",
+        "presets_source": presets.origin,
+        "attribution": ATTRIBUTION,
+        "targets": {"max_colour_noise_ratio": MAX_NOISE_RATIO, "min_brightness_ratio": MIN_BRIGHTNESS_RATIO},
+        "volumes": volumes,
+    }
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / "compare.json").write_text(json.dumps(document, indent=1) + "\n", encoding="utf-8")
+    (RESULTS / "compare.md").write_text(markdown(document), encoding="utf-8")
+    print(f"compare: wrote {RESULTS / 'compare.md'} in {document['seconds']:.0f} s", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
