@@ -41,7 +41,8 @@ def assert_node_shows(property_node, design):
     centres = 0.5 * (design.edges[:-1] + design.edges[1:])
     colors, opacities = tf_at(property_node, centres)
     for c in design.classes:
-        np.testing.assert_allclose(colors[c.isovalue_bins], np.tile(c.color, (len(c.isovalue_bins), 1)))
+        if design.is_shown(c.id):  # a hidden class's colour is its nearest shown neighbour's (see bin_looks)
+            np.testing.assert_allclose(colors[c.isovalue_bins], np.tile(c.color, (len(c.isovalue_bins), 1)))
         np.testing.assert_allclose(opacities[c.isovalue_bins], c.opacity if design.is_shown(c.id) else 0.0)
 
 
@@ -54,7 +55,7 @@ def test_apply_creates_and_attaches_a_named_property_node(slicer_app, phantom, p
     assert node.GetName() == "Head IsoSimilarityTF"
     # No unused default property node next to ours (CreateDefaultVolumeRenderingNodes would leave one).
     assert property_nodes(slicer_app.scene) == [node]
-    assert node.GetVolumeProperty().GetScalarOpacityUnitDistance() == pytest.approx(min(phantom.spacing))
+    assert node.GetVolumeProperty().GetScalarOpacityUnitDistance() == pytest.approx(phantom_design.unit_distance)
     assert node.GetEffectiveRange() == pytest.approx(volume.GetImageData().GetScalarRange())
     assert design_node_of(volume) is node
     assert_node_shows(node, phantom_design)
@@ -93,8 +94,9 @@ def test_class_edit_updates_the_node_in_place_and_only_that_class(slicer_app, ph
     update_property_node(node, design)
     assert node.GetVolumeProperty() is vp and vp.GetScalarOpacity() is opacity_function
     colors_after, opacities_after = tf_at(node, centres)
-    changed = np.flatnonzero(np.any(colors_after != colors_before, axis=1) | (opacities_after != opacities_before))
-    assert list(changed) == target.isovalue_bins
+    changed = np.any(colors_after != colors_before, axis=1) | (opacities_after != opacities_before)
+    shown = opacities_after > 0
+    assert list(np.flatnonzero(changed & shown)) == target.isovalue_bins
     assert design_of(node).class_by_id(target.id).color == [0.0, 1.0, 1.0]
 
 
@@ -205,7 +207,7 @@ def test_a_preset_copied_into_the_property_node_keeps_the_design_and_is_noticed(
     assert mrml.update_design(volume, design, slicer_app.volume_rendering_logic) is node
     assert not mrml.modified_outside(volume)
     assert_node_shows(node, design)
-    assert node.GetVolumeProperty().GetScalarOpacityUnitDistance() == pytest.approx(min(phantom.spacing))
+    assert node.GetVolumeProperty().GetScalarOpacityUnitDistance() == pytest.approx(design.unit_distance)
 
 
 def test_synchronize_with_volumes_and_shift_are_noticed(slicer_app, phantom, phantom_design):
@@ -249,9 +251,11 @@ def test_no_design_and_nothing_shown_mean_nothing_modified(slicer_app, phantom, 
 def test_edits_keep_the_unit_distance_that_a_legacy_vp_file_loses(slicer_app, phantom, phantom_design):
     volume = add_phantom(slicer_app, phantom)
     node = apply_design(volume, phantom_design, slicer_app.volume_rendering_logic)
-    node.GetVolumeProperty().SetScalarOpacityUnitDistance(1.0)  # what Slicer 5.8 reads back from a .vp scene file
+    # A unit distance other than the design's, as Slicer 5.8 reads back from a .vp scene file (1.0, its default) when
+    # the design's is not 1 mm.
+    node.GetVolumeProperty().SetScalarOpacityUnitDistance(2.5 * phantom_design.unit_distance)
     mrml.update_design(volume, phantom_design, slicer_app.volume_rendering_logic)
-    assert node.GetVolumeProperty().GetScalarOpacityUnitDistance() == pytest.approx(min(phantom.spacing))
+    assert node.GetVolumeProperty().GetScalarOpacityUnitDistance() == pytest.approx(phantom_design.unit_distance)
 
 
 def save_and_reopen(scene, folder, check):
@@ -282,7 +286,7 @@ def test_scene_saved_with_a_legacy_vp_file_and_reopened(tmp_path, slicer_app, ph
         assert not mrml.modified_outside(volume_back)
         assert node_back.GetVolumeProperty().GetScalarOpacityUnitDistance() == 1.0  # lost by the .vp file
         mrml.update_design(volume_back, design, reopened.volume_rendering_logic)
-        assert node_back.GetVolumeProperty().GetScalarOpacityUnitDistance() == pytest.approx(min(phantom.spacing))
+        assert node_back.GetVolumeProperty().GetScalarOpacityUnitDistance() == pytest.approx(design.unit_distance)
 
     save_and_reopen(slicer_app.scene, tmp_path / "bundle", check)
 
@@ -424,7 +428,7 @@ def test_add_preset_puts_the_design_in_the_preset_menu_with_an_icon(slicer_app, 
     icon = preset.GetNodeReference(logic.GetIconVolumeReferenceRole()).GetImageData()
     assert icon.GetDimensions() == (ICON_SIZE, ICON_SIZE, 1) and icon.GetNumberOfScalarComponents() == 3
     picture = transfer_function_icon(phantom_design)
-    assert picture.shape == (ICON_SIZE, ICON_SIZE, 3) and len(np.unique(picture.reshape(-1, 3), axis=0)) > 3
+    assert picture.shape == (ICON_SIZE, ICON_SIZE, 3) and len(np.unique(picture.reshape(-1, 3), axis=0)) > 2
     with pytest.raises(ValueError):
         mrml.add_preset(phantom_design, logic, "  ")
 

@@ -7,10 +7,12 @@ import pytest
 
 from IsoSimilarityTFLib import TransferFunctionFileError, read_vp, read_vp_json
 from IsoSimilarityTFLib.transfer_function import (
+    MAX_TABLE_SIZE,
     fill_volume_property,
     new_volume_property,
     piecewise_constant,
     points_of_volume_property,
+    step_width,
     write_vp,
     write_vp_json,
 )
@@ -29,9 +31,20 @@ def test_piecewise_constant_is_exact_inside_bins_and_steps_at_edges():
     color, opacity = tf(centres)
     np.testing.assert_allclose(color, COLORS)
     np.testing.assert_allclose(opacity, OPACITY)
-    # At an edge the new bin's look applies; a hair below it the old one.
-    color, opacity = tf(np.array([EDGES[5], EDGES[5] - 1e-2]))
+    # At an edge the new bin's look applies; a step's width below it the old one.
+    color, opacity = tf(np.array([EDGES[5], EDGES[5] - step_width(EDGES)]))
     np.testing.assert_allclose(opacity, [0.5, 0.2])
+
+
+@pytest.mark.parametrize("n_bins", [8, 256, 1024])
+def test_steps_fit_the_gpu_lookup_table(n_bins):
+    """VTK's GPU ray caster samples range / (smallest point spacing) table entries: at most MAX_TABLE_SIZE."""
+    edges = np.linspace(-1024.0, 3071.0, n_bins + 1)
+    alternating = np.arange(n_bins) % 2  # every bin its own run: the most points a design can make
+    tf = piecewise_constant(edges, np.zeros((n_bins, 3)), alternating.astype(float))
+    assert np.all(np.diff(tf.x) > 0)
+    assert (edges[-1] - edges[0]) / np.diff(tf.x).min() <= MAX_TABLE_SIZE
+    assert np.diff(tf.x).min() <= 0.25 * (edges[1] - edges[0]) + 1e-9  # still a step, not a ramp
 
 
 def test_vtk_volume_property_holds_the_same_function():

@@ -29,7 +29,7 @@ def test_child_gives_the_same_design_as_in_process(phantom):
     np.testing.assert_array_equal(design.similarity, expected.similarity)
     assert design.spacing == expected.spacing
     stages = [stage for stage, _, _ in reports]
-    assert stages[0] == "quantize" and stages[-1] == "classes" and "similarity" in stages and "clustering" in stages
+    assert stages[0] == "quantize" and stages[-1] == "tissues" and "similarity" in stages and "clustering" in stages
 
 
 def test_child_errors_come_back_with_their_type_and_message(phantom):

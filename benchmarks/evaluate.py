@@ -48,6 +48,7 @@ from baselines import (  # noqa: E402
     kmeans_intensity_labels,
     kmedoids_isovalues,
 )
+from tissue_quality import REGROUP_COUNTS, colin27_cases, mni152_case, phantom_cases, score_case  # noqa: E402
 
 RESULTS = HERE / "results"
 MAX_CLASSES = 15
@@ -387,6 +388,22 @@ def sweep_table(rows: list[dict], key: str, unit: str) -> str:
     return _table(header, body)
 
 
+def tissue_report(records: list[dict]) -> str:
+    """One table per case: every grouping's V-measure, then the V-measure of every regrouping count."""
+    parts = []
+    for r in records:
+        parts.append(
+            f"\n### {r['case']}: {r['n_classes']} AP classes, {r['n_tissues']} tissues by default "
+            f"(+ background), design {r['design_seconds']:.2f} s of which tissues {r['tissue_seconds']:.2f} s\n"
+        )
+        parts.append(_table(["grouping", "V-measure"], [[k, f"{v:.3f}"] for k, v in r["v_measure"].items()]))
+        counts = [n for n in REGROUP_COUNTS if n in r["regroup"] or str(n) in r["regroup"]]
+        values = [r["regroup"].get(n, r["regroup"].get(str(n))) for n in counts]
+        parts.append("\n\nRegrouped to n tissues (`design.regroup(n)`):\n")
+        parts.append(_table(["n", *map(str, counts)], [["V-measure", *(f"{v:.3f}" for v in values)]]))
+    return "\n".join(parts)
+
+
 def plot_sweeps(noise_rows: list[dict], blur_rows: list[dict], path: Path) -> None:
     import matplotlib
 
@@ -493,6 +510,19 @@ def main(argv: list[str] | None = None) -> int:
         log(f"real volume {name}")
         real_records += run_real_volume(name, list(VARIANTS))
 
+    tissue_records, tissue_notes = [], []
+    cases = list(phantom_cases(seeds, main_size)) + list(colin27_cases())
+    if not any(c.name.startswith("Colin27") for c in cases):
+        tissue_notes.append("Colin27 skipped: Debian package mricron-data is not installed.")
+    held_out = mni152_case()
+    if held_out is None:
+        tissue_notes.append("MNI152 held-out brain skipped: nilearn is not installed (`make evaluate` installs it).")
+    else:
+        cases.append(held_out)
+    for case in cases:
+        log(f"tissues: {case.name}")
+        tissue_records.append(score_case(case))
+
     main_rows = aggregate(main_records, ("size", "noise_hu", "blur_mm"))
     noise_rows = aggregate([r for r in sweep_records if r["sweep"] == "noise"], ("noise_hu",))
     blur_rows = aggregate([r for r in sweep_records if r["sweep"] == "blur"], ("blur_mm",))
@@ -595,6 +625,9 @@ def main(argv: list[str] | None = None) -> int:
             ],
         ),
         f"\n\nPlots: `{stem}-robustness.png`, `{stem}-tissues.png`.\n",
+        "\n## Tissues against labelled volumes (V-measure)\n",
+        *tissue_notes,
+        tissue_report(tissue_records),
         "\n## Run\n",
         _table(["item", "value"], [[k, v] for k, v in machine.items()]),
         "\n",
@@ -610,6 +643,7 @@ def main(argv: list[str] | None = None) -> int:
                 "blur_sweep": blur_rows,
                 "comparisons": comparisons,
                 "real": real_records,
+                "tissue_grouping": tissue_records,
                 "records": {"main": main_records, "sweeps": sweep_records},
             },
             indent=1,

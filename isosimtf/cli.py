@@ -78,9 +78,9 @@ def _checked_by(option: Option) -> Callable[[str], Any]:
     """The argparse ``type`` of an option: parse the word, then check it against the option's table entry."""
 
     def parse(text: str) -> Any:
-        if option.kind in ("choice", "choice-or-float") and text in option.choices:
-            return text
-        if option.kind == "int":
+        if option.choices and text.lower() in option.choices:
+            return text.lower()
+        if option.kind in ("int", "choice-or-int"):
             try:
                 value: Any = int(text)
             except ValueError:

@@ -16,18 +16,6 @@ PALETTE: tuple[tuple[float, float, float], ...] = tuple(
     )
 )  # fmt: skip
 
-# Default opacity grows with the class's place in intensity among the shown classes, steeply (4th power): dense tissue
-# (bone, contrast) opaque, the large soft-tissue classes translucent enough to see the bone through them, and the
-# faint classes just above the background nearly clear, so they do not fog the view. The ramp tops out at the
-# densest class holding at least 1% of the non-background voxels: a few noisy voxels denser than bone do not take
-# the top of the ramp from the bone.
-MIN_OPACITY = 0.02
-MAX_OPACITY = 0.8
-OPACITY_EXPONENT = 4.0
-RAMP_TOP_SHARE = 0.01
-# A class most of whose voxels touch the background is noise scattered in it or the partial-volume rim around
-# objects: shown, it fogs the view, so it starts hidden (the tissue it borders is shown by its own class).
-FRINGE_CONTACT = 0.5
 # Voxels sampled (whole planes, evenly spaced) to measure background contact: enough for a share, and fast.
 _CONTACT_SAMPLE_VOXELS = 1 << 22
 
@@ -152,49 +140,6 @@ def _plane_classes(twice_class_of_bin: np.ndarray, plane: np.ndarray, background
     return classes, classes == background
 
 
-def default_visibility(classes: list[IsovalueClass], max_classes: int) -> list[bool]:
-    """Classes shown by default: the ``max_classes`` largest that are neither background nor on its fringe.
-
-    When every other class is on the fringe (a tiny or toy volume), they are all candidates: never a blank view.
-    """
-    others = [c for c in classes if not c.background]
-    inner = [c for c in others if c.background_contact <= FRINGE_CONTACT]
-    candidates = sorted((c.rank, c.id) for c in (inner or others))
-    shown = {class_id for _, class_id in candidates[:max_classes]}
-    return [c.id in shown for c in classes]
-
-
-def default_opacities(classes: list[IsovalueClass], max_classes: int) -> list[float]:
-    """Default opacity per class: 0 for the background, else rising with intensity across the default shown classes.
-
-    A class's place is its exemplar's position among the shown classes' exemplars (0 for the lowest, 1 for the
-    densest one holding at least ``RAMP_TOP_SHARE`` of the non-background voxels, interpolated between and clamped
-    outside), so the densest real tissue is the most opaque and the few noisy voxels above it do not take the top.
-    """
-    shown = [c for c, visible in zip(classes, default_visibility(classes, max_classes)) if visible]
-    others = [c for c in classes if not c.background]
-    tissue_voxels = sum(c.voxels for c in others)
-    top = max((c.exemplar_bin for c in shown if c.voxels >= RAMP_TOP_SHARE * tissue_voxels), default=None)
-    anchors = sorted(c.exemplar_bin for c in shown if top is None or c.exemplar_bin <= top)
-    if len(anchors) < 2:
-        anchors = sorted(c.exemplar_bin for c in others) or [0]
-    places = np.linspace(0.0, 1.0, len(anchors)) if len(anchors) > 1 else np.ones(1)
-    return [
-        0.0
-        if c.background
-        else MIN_OPACITY
-        + (MAX_OPACITY - MIN_OPACITY) * float(np.interp(c.exemplar_bin, anchors, places)) ** OPACITY_EXPONENT
-        for c in classes
-    ]
-
-
-def default_colors(classes: list[IsovalueClass]) -> list[list[float]]:
-    """Default colour per class: palette colours in rank order of the non-background classes, grey for background."""
-    others = sorted((c.rank, c.id) for c in classes if not c.background)
-    color_of = {class_id: list(PALETTE[i % len(PALETTE)]) for i, (_, class_id) in enumerate(others)}
-    return [[0.5, 0.5, 0.5] if c.background else color_of[c.id] for c in classes]
-
-
 def build_classes(
     labels: np.ndarray,
     exemplars: np.ndarray,
@@ -202,10 +147,11 @@ def build_classes(
     edges: np.ndarray,
     *,
     background: str = "largest",
-    max_classes: int = 15,
     bins: Optional[np.ndarray] = None,
 ) -> list[IsovalueClass]:
-    """Rank classes by voxel count, pick the background, and give every class its default look.
+    """Rank classes by voxel count, pick the background, and measure each class's contact with it.
+
+    The look (colour, opacity, visibility) is the design's (see :mod:`.look`).
 
     Args:
         labels: ``(n_bins,)`` class id per isovalue bin (ids ``0..n_classes-1``).
@@ -214,19 +160,13 @@ def build_classes(
         edges: ``(n_bins + 1,)`` bin edges in volume units.
         background: ``"largest"`` (the class with most voxels, thesis), ``"lowest"`` (the class of the lowest
             occupied bin) or ``"none"``.
-        max_classes: how many non-background classes are shown, largest first; the rest are kept but hidden.
-        bins: the quantized volume; when given, classes on the background's fringe (see ``FRINGE_CONTACT``) start
-            hidden and do not count towards ``max_classes``.
-        bins: the quantized volume; when given, classes on the background's fringe (see ``FRINGE_CONTACT``) start
-            hidden and do not count towards ``max_classes``.
+        bins: the quantized volume; when given, each class's ``background_contact`` is measured on it.
 
     Returns:
         Classes in id order.
     """
     if background not in BACKGROUND_RULES:
         raise ValueError(f"background must be one of {BACKGROUND_RULES}; got {background!r}")
-    if isinstance(max_classes, bool) or not isinstance(max_classes, (int, np.integer)) or max_classes < 0:
-        raise ValueError(f"max_classes must be a non-negative integer; got {max_classes!r}")
     labels = np.asarray(labels)
     n_classes = int(np.asarray(exemplars).size)
     voxels = np.bincount(labels, weights=bin_voxels, minlength=n_classes).astype(np.int64)
@@ -260,9 +200,4 @@ def build_classes(
                 background_contact=float(contact[class_id]) if class_id != background_id else 1.0,
             )
         )
-    looks = zip(
-        default_colors(classes), default_opacities(classes, max_classes), default_visibility(classes, max_classes)
-    )
-    for c, (color, opacity, visible) in zip(classes, looks):
-        c.color, c.opacity, c.visible = color, opacity, visible
     return classes

@@ -9,13 +9,15 @@ from typing import Callable, Optional, Union
 
 import numpy as np
 
-from .classes import IsovalueClass, build_classes, default_colors, default_opacities
+from .classes import IsovalueClass, build_classes, runs
 from .clustering import FALLBACK_DAMPINGS, cluster_isovalues
 from .errors import ClusteringError
+from .look import class_mean_values, default_look, detect_kind
 from .memory import check_memory
 from .options import DEFAULT_OPTIONS, check_options
 from .quantize import Quantization, quantize
 from .similarity import isovalue_similarity
+from .tissues import TissueHierarchy, tissue_hierarchy
 from .transfer_function import (
     TransferFunctionPoints,
     fill_volume_property,
@@ -28,15 +30,68 @@ from .transfer_function import (
 StageProgress = Callable[[str, float, str], None]
 
 #: The engine's stages, in order: the keys of ``timings_s`` and the ``stage`` given to ``progress``.
-STAGES = ("quantize", "similarity", "clustering", "classes")
+STAGES = ("quantize", "similarity", "clustering", "classes", "tissues")
+# Scalar opacity unit distance in mm: opacity is per millimetre, as in Slicer's presets, whatever the spacing.
+UNIT_DISTANCE_MM = 1.0
+
+
+@dataclass
+class Tissue:
+    """A run of classes, contiguous in intensity, shown as one tissue.
+
+    Attributes:
+        id: tissue id, 0 for the lowest intensity, increasing.
+        classes: member class ids, in intensity order.
+        voxels: voxels in the member classes.
+        value_ranges: ``[low, high]`` in volume units for each run of consecutive bins of the members.
+        color: ``[r, g, b]`` in 0..1 (the members' colour after a tissue edit or by default).
+        opacity: opacity per mm when shown.
+        visible: whether the tissue is shown.
+        background: whether the tissue is the background class alone.
+    """
+
+    id: int
+    classes: list[int]
+    voxels: int
+    value_ranges: list[list[float]]
+    color: list[float]
+    opacity: float
+    visible: bool
+    background: bool = False
+
+    def to_dict(self) -> dict:
+        return {
+            "id": self.id,
+            "classes": list(self.classes),
+            "voxels": self.voxels,
+            "value_ranges": [list(r) for r in self.value_ranges],
+            "color": list(self.color),
+            "opacity": self.opacity,
+            "visible": self.visible,
+            "background": self.background,
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "Tissue":
+        return cls(
+            id=int(data["id"]),
+            classes=[int(c) for c in data["classes"]],
+            voxels=int(data["voxels"]),
+            value_ranges=[[float(lo), float(hi)] for lo, hi in data["value_ranges"]],
+            color=[float(c) for c in data["color"]],
+            opacity=float(data["opacity"]),
+            visible=bool(data["visible"]),
+            background=bool(data.get("background", False)),
+        )
 
 
 @dataclass
 class TransferFunctionDesign:
-    """An automatic transfer function: the classes found in a volume and how each one looks.
+    """An automatic transfer function: the classes found in a volume, their tissues and how each one looks.
 
-    Editing (:meth:`set_class`, :meth:`solo`, :meth:`show_all`, :meth:`reset_look`) changes only the look; the
-    transfer function is derived from the classes each time it is asked for.
+    Editing (:meth:`set_class`, :meth:`set_tissue`, :meth:`solo`, :meth:`solo_tissue`, :meth:`show_all`,
+    :meth:`reset_look`, :meth:`regroup`) changes only the look or the grouping; the transfer function is derived from
+    the classes each time it is asked for. A tissue edit writes through to its classes.
 
     Attributes:
         value_range: ``(low, high)`` of the isovalue bins, in volume units.
@@ -45,9 +100,14 @@ class TransferFunctionDesign:
         classes: the classes, in id order (id 0 = lowest exemplar intensity).
         options: the options the design was made with.
         clustering: ``n_iter``, ``converged``, ``n_classes`` and ``preference`` of affinity propagation.
+        bin_voxels: ``(n_bins,)`` voxels per bin (the volume's histogram).
+        hierarchy: every grouping of the non-background classes into tissues (see :mod:`.tissues`).
+        kind: ``"ct"``, ``"mr"`` or ``"8bit"`` (see :func:`.look.detect_kind`); chooses the opacity curve.
+        tissues: the current tissues, in id order (id 0 = lowest intensity).
         timings_s: seconds per stage.
-        spacing: voxel spacing in mm (sets the opacity unit distance), or None.
+        spacing: voxel spacing in mm, or None.
         solo_class: id of the class shown alone, or None.
+        solo_tissue_id: id of the tissue shown alone, or None.
         similarity: ``(n_bins, n_bins)`` similarity matrix (not serialized), or None after loading.
     """
 
@@ -57,9 +117,14 @@ class TransferFunctionDesign:
     classes: list[IsovalueClass]
     options: dict
     clustering: dict
+    bin_voxels: np.ndarray
+    hierarchy: TissueHierarchy
+    kind: str = "mr"
+    tissues: list[Tissue] = field(default_factory=list)
     timings_s: dict[str, float] = field(default_factory=dict)
     spacing: Optional[tuple[float, float, float]] = None
     solo_class: Optional[int] = None
+    solo_tissue_id: Optional[int] = None
     similarity: Optional[np.ndarray] = field(default=None, repr=False)
 
     @property
@@ -76,11 +141,60 @@ class TransferFunctionDesign:
             raise KeyError(f"no class {class_id}; classes are 0 to {len(self.classes) - 1}")
         return self.classes[class_id]
 
+    def tissue_by_id(self, tissue_id: int) -> Tissue:
+        if not 0 <= tissue_id < len(self.tissues):
+            raise KeyError(f"no tissue {tissue_id}; tissues are 0 to {len(self.tissues) - 1}")
+        return self.tissues[tissue_id]
+
+    @property
+    def tissue_of_class(self) -> np.ndarray:
+        """``(n_classes,)`` tissue id of each class."""
+        of = np.zeros(len(self.classes), dtype=np.intp)
+        for t in self.tissues:
+            of[t.classes] = t.id
+        return of
+
     def is_shown(self, class_id: int) -> bool:
         """Whether the class appears in the transfer function (solo overrides the visible flags)."""
         if self.solo_class is not None:
             return class_id == self.solo_class
+        if self.solo_tissue_id is not None:
+            return class_id in self.tissue_by_id(self.solo_tissue_id).classes
         return self.class_by_id(class_id).visible
+
+    # Grouping ------------------------------------------------------------------------------------------------------
+    @property
+    def n_tissues(self) -> int:
+        """Number of non-background tissues."""
+        return sum(not t.background for t in self.tissues)
+
+    def regroup(self, tissues: Union[int, str] = "auto") -> None:
+        """Group the classes into ``tissues`` non-background tissues (``"auto"``: the intensity model's count,
+        ``"all"``: one per class, the thesis), instantly, and give them the default look. Leaves solo mode."""
+        n = _tissue_count(tissues, self.hierarchy)
+        background = self.background_class
+        groups = self.hierarchy.groups(n) if self.hierarchy.order else []
+        if background is not None:
+            groups.append([background.id])
+        groups.sort(key=lambda members: self.classes[members[0]].exemplar_bin)
+        edges = self.edges
+        self.tissues = []
+        for tissue_id, members in enumerate(groups):
+            bins = np.flatnonzero(np.isin(self.labels, members))
+            self.tissues.append(
+                Tissue(
+                    id=tissue_id,
+                    classes=[int(c) for c in members],
+                    voxels=int(sum(self.classes[c].voxels for c in members)),
+                    value_ranges=[[float(edges[a]), float(edges[b + 1])] for a, b in runs(bins)],
+                    color=[0.5, 0.5, 0.5],
+                    opacity=0.0,
+                    visible=False,
+                    background=background is not None and members == [background.id],
+                )
+            )
+        self.solo_class = self.solo_tissue_id = None
+        self.reset_look()
 
     # Editing -------------------------------------------------------------------------------------------------------
     def set_class(
@@ -91,38 +205,58 @@ class TransferFunctionDesign:
         opacity: Optional[float] = None,
         visible: Optional[bool] = None,
     ) -> None:
-        """Change one class's colour (``[r, g, b]`` in 0..1), opacity (0..1) or visibility."""
-        target = self.class_by_id(class_id)
-        if color is not None:
-            color = [float(c) for c in color]
-            if len(color) != 3 or not all(0.0 <= c <= 1.0 for c in color):
-                raise ValueError(f"color must be three numbers in [0, 1]; got {color!r}")
-            target.color = color
-        if opacity is not None:
-            if not 0.0 <= float(opacity) <= 1.0:
-                raise ValueError(f"opacity must be in [0, 1]; got {opacity!r}")
-            target.opacity = float(opacity)
-        if visible is not None:
-            target.visible = bool(visible)
+        """Change one class's colour (``[r, g, b]`` in 0..1), opacity (0..1, per mm) or visibility."""
+        _apply_edit(self.class_by_id(class_id), color, opacity, visible)
+
+    def set_tissue(
+        self,
+        tissue_id: int,
+        *,
+        color: Optional[Sequence[float]] = None,
+        opacity: Optional[float] = None,
+        visible: Optional[bool] = None,
+    ) -> None:
+        """Change a tissue's colour, opacity or visibility, and the same on every class of the tissue."""
+        tissue = self.tissue_by_id(tissue_id)
+        _apply_edit(tissue, color, opacity, visible)
+        for class_id in tissue.classes:
+            _apply_edit(self.classes[class_id], color, opacity, visible)
 
     def solo(self, class_id: Optional[int]) -> None:
         """Show only this class (None: back to each class's own visibility)."""
         if class_id is not None:
             self.class_by_id(class_id)
-        self.solo_class = class_id
+        self.solo_class, self.solo_tissue_id = class_id, None
+
+    def solo_tissue(self, tissue_id: Optional[int]) -> None:
+        """Show only this tissue (None: back to each class's own visibility)."""
+        if tissue_id is not None:
+            self.tissue_by_id(tissue_id)
+        self.solo_class, self.solo_tissue_id = None, tissue_id
 
     def show_all(self) -> None:
-        """Make every class but the background visible and leave solo mode."""
-        self.solo_class = None
-        for c in self.classes:
-            c.visible = not c.background
+        """Make every class and tissue but the background visible and leave solo mode."""
+        self.solo_class = self.solo_tissue_id = None
+        for item in [*self.classes, *self.tissues]:
+            item.visible = not item.background
 
     def reset_look(self) -> None:
-        """Back to the default colours and opacities (visibility untouched)."""
-        max_classes = self.options.get("max_classes", DEFAULT_OPTIONS["max_classes"])
-        looks = zip(default_colors(self.classes), default_opacities(self.classes, max_classes))
-        for c, (color, opacity) in zip(self.classes, looks):
-            c.color, c.opacity = color, opacity
+        """Back to the default colours, opacities and visibility of the current grouping (see :mod:`.look`)."""
+        colors, opacities, visible = default_look(
+            self.classes,
+            self.tissue_of_class,
+            class_mean_values(self.labels, self.bin_voxels, self.edges, len(self.classes)),
+            self.kind,
+            colors=self.options.get("colors", DEFAULT_OPTIONS["colors"]),
+            max_shown=self.options.get("max_classes", DEFAULT_OPTIONS["max_classes"]),
+        )
+        for c, color, opacity, shown in zip(self.classes, colors, opacities, visible):
+            c.color, c.opacity, c.visible = color, opacity, shown
+        for t in self.tissues:
+            members = [self.classes[c] for c in t.classes]
+            t.color = list(members[0].color)
+            t.opacity = max(c.opacity for c in members)
+            t.visible = any(c.visible for c in members)
 
     # Transfer function ---------------------------------------------------------------------------------------------
     @property
@@ -131,10 +265,18 @@ class TransferFunctionDesign:
         return np.array([c.color for c in self.classes], dtype=np.float64)
 
     def bin_looks(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(n_bins, 3)`` colour and ``(n_bins,)`` opacity per bin, 0 opacity where the class is not shown."""
-        colors = self.class_colors
+        """``(n_bins, 3)`` colour and ``(n_bins,)`` opacity per bin, 0 opacity where the class is not shown.
+
+        A bin that is not shown takes the colour of the nearest shown bin: the ray caster interpolates colour across
+        each step, and a hidden neighbour's colour would otherwise tint the rim of what is shown.
+        """
         opacities = np.array([c.opacity if self.is_shown(c.id) else 0.0 for c in self.classes], dtype=np.float64)
-        return colors[self.labels], opacities[self.labels]
+        bin_colors, bin_opacity = self.class_colors[self.labels], opacities[self.labels]
+        shown = np.flatnonzero(bin_opacity > 0)
+        if shown.size:
+            nearest = shown[np.argmin(np.abs(np.arange(self.n_bins)[:, None] - shown[None, :]), axis=1)]
+            bin_colors = bin_colors[nearest]
+        return bin_colors, bin_opacity
 
     def transfer_function(self) -> TransferFunctionPoints:
         """Piecewise-constant control points in volume units."""
@@ -142,8 +284,8 @@ class TransferFunctionDesign:
 
     @property
     def unit_distance(self) -> float:
-        """Scalar opacity unit distance in mm: the smallest voxel spacing, so opacity is per voxel step."""
-        return float(min(self.spacing)) if self.spacing else 1.0
+        """Scalar opacity unit distance in mm: 1, so opacity is per millimetre whatever the voxel spacing."""
+        return UNIT_DISTANCE_MM
 
     def volume_property(self):
         """A new ``vtkVolumeProperty`` showing this design."""
@@ -162,6 +304,7 @@ class TransferFunctionDesign:
     # Serialization -------------------------------------------------------------------------------------------------
     def to_dict(self) -> dict:
         """The ``classes.json`` document (everything but the similarity matrix)."""
+        tissue_of_class = self.tissue_of_class
         return {
             "value_range": [float(v) for v in self.value_range],
             "n_bins": self.n_bins,
@@ -169,9 +312,14 @@ class TransferFunctionDesign:
             "timings_s": dict(self.timings_s),
             "clustering": dict(self.clustering),
             "spacing": list(self.spacing) if self.spacing else None,
+            "kind": self.kind,
             "solo_class": self.solo_class,
+            "solo_tissue": self.solo_tissue_id,
             "labels": [int(v) for v in self.labels],
-            "classes": [c.to_dict() for c in self.classes],
+            "bin_voxels": [int(v) for v in self.bin_voxels],
+            "tissue_hierarchy": self.hierarchy.to_dict(),
+            "classes": [{**c.to_dict(), "tissue": int(tissue_of_class[c.id])} for c in self.classes],
+            "tissues": [t.to_dict() for t in self.tissues],
         }
 
     def to_json(self) -> str:
@@ -188,6 +336,13 @@ class TransferFunctionDesign:
             if labels.size and not 0 <= labels.min() <= labels.max() < len(classes):
                 raise ValueError("a label names no class")
             spacing = data.get("spacing")
+            tissues = [Tissue.from_dict(t) for t in data["tissues"]]
+            members = sorted(c for t in tissues for c in t.classes)
+            if members != list(range(len(classes))) or [t.id for t in tissues] != list(range(len(tissues))):
+                raise ValueError("tissues do not hold every class once")
+            bin_voxels = np.asarray(data["bin_voxels"], dtype=np.int64)
+            if bin_voxels.shape != (n_bins,):
+                raise ValueError("bin_voxels must hold one count per bin")
             return cls(
                 value_range=(float(data["value_range"][0]), float(data["value_range"][1])),
                 n_bins=n_bins,
@@ -195,9 +350,14 @@ class TransferFunctionDesign:
                 classes=sorted(classes, key=lambda c: c.id),
                 options=dict(data.get("options", {})),
                 clustering=dict(data.get("clustering", {})),
+                bin_voxels=bin_voxels,
+                hierarchy=TissueHierarchy.from_dict(data["tissue_hierarchy"]),
+                kind=str(data.get("kind", "mr")),
+                tissues=tissues,
                 timings_s={k: float(v) for k, v in data.get("timings_s", {}).items()},
                 spacing=tuple(float(s) for s in spacing) if spacing else None,
                 solo_class=data.get("solo_class"),
+                solo_tissue_id=data.get("solo_tissue"),
             )
         except (KeyError, TypeError, ValueError, IndexError) as error:
             raise ValueError(f"not a valid IsoSimilarityTF design: {error!r}") from None
@@ -209,6 +369,38 @@ class TransferFunctionDesign:
         except json.JSONDecodeError as error:
             raise ValueError(f"not a valid IsoSimilarityTF design: {error}") from None
         return cls.from_dict(data)
+
+
+def _apply_edit(
+    target: Union[IsovalueClass, Tissue],
+    color: Optional[Sequence[float]],
+    opacity: Optional[float],
+    visible: Optional[bool],
+) -> None:
+    if color is not None:
+        color = [float(c) for c in color]
+        if len(color) != 3 or not all(0.0 <= c <= 1.0 for c in color):
+            raise ValueError(f"color must be three numbers in [0, 1]; got {color!r}")
+        target.color = color
+    if opacity is not None:
+        if not 0.0 <= float(opacity) <= 1.0:
+            raise ValueError(f"opacity must be in [0, 1]; got {opacity!r}")
+        target.opacity = float(opacity)
+    if visible is not None:
+        target.visible = bool(visible)
+
+
+def _tissue_count(tissues: Union[int, str], hierarchy: TissueHierarchy) -> int:
+    """The number of non-background tissues that ``tissues`` (``"auto"``, ``"all"`` or a count) asks for."""
+    if tissues == "auto":
+        return hierarchy.auto
+    if tissues == "all":
+        return hierarchy.max_tissues
+    if isinstance(tissues, bool) or not isinstance(tissues, (int, np.integer)):
+        raise ValueError(f'tissues must be "auto", "all" or a positive integer; got {tissues!r}')
+    if not 1 <= tissues <= max(hierarchy.max_tissues, 1):
+        raise ValueError(f"tissues must be 1 to {hierarchy.max_tissues} (one per class) here; got {tissues}")
+    return int(tissues)
 
 
 def _check_spacing(spacing) -> Optional[tuple[float, float, float]]:
@@ -240,6 +432,11 @@ def design_transfer_function(
             ``"raise-damping"`` retries with damping 0.7 then 0.9 and iteration limits scaled by the slower message
             updates (what was used is reported in ``clustering``), ``"error"`` raises,
             ``"keep"`` keeps the last iteration's grouping (reported as not converged).
+            ``tissues``: ``"auto"`` (the count the intensity model chooses, see :mod:`.tissues`), ``"all"`` (one
+            tissue per class: the thesis' classes) or a number of non-background tissues; :meth:`regroup` changes
+            it later without recomputing anything. ``colors``: ``"ramp"`` (one intensity-ordered colour per tissue)
+            or ``"distinct"`` (the qualitative palette). ``modality``: ``"CT"``, ``"MR"`` or None to detect the
+            kind of volume from its dtype and value range (see :func:`.look.detect_kind`).
 
     Raises:
         ValueError: bad volume or option. ClusteringError: affinity propagation gave no usable grouping.
@@ -305,14 +502,28 @@ def design_transfer_function(
             )
 
     with stage("classes", "ranking classes"):
+        bin_voxels = quantized.voxel_counts()
         classes = build_classes(
             clusters.labels,
             clusters.exemplars,
-            quantized.voxel_counts(),
+            bin_voxels,
             quantized.edges,
             background=opts["background"],
-            max_classes=opts["max_classes"],
             bins=quantized.bins,
+        )
+
+    with stage("tissues", "grouping classes into tissues"):
+        background = next((c.id for c in classes if c.background), None)
+        hierarchy = tissue_hierarchy(
+            clusters.labels,
+            bin_voxels,
+            [c.id for c in classes if c.id != background],
+            similarity.matrix,
+        )
+        kind = detect_kind(
+            np.asarray(values).dtype if not isinstance(values, Quantization) else np.float64,
+            quantized.value_range,
+            opts["modality"],
         )
     design = TransferFunctionDesign(
         value_range=quantized.value_range,
@@ -329,9 +540,13 @@ def design_transfer_function(
             **iterations,
             "empty_isovalues": [int(b) for b in similarity.empty_isovalues],
         },
+        bin_voxels=bin_voxels,
+        hierarchy=hierarchy,
+        kind=kind,
         spacing=spacing,
         similarity=similarity.matrix,
     )
+    design.regroup(opts["tissues"])
     design.timings_s = timings
-    report("classes", 1.0, f"{clusters.n_classes} classes")
+    report("tissues", 1.0, f"{clusters.n_classes} classes, {design.n_tissues} tissues")
     return design

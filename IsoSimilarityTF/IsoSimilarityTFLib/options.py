@@ -14,6 +14,7 @@ from typing import Any, Optional
 from .classes import BACKGROUND_RULES
 from .clustering import PREFERENCES, UNCONVERGED_RULES
 from .errors import OptionError
+from .look import COLOR_SCHEMES, KINDS
 from .quantize import MAX_BINS
 from .similarity import CROSSINGS, NORMALIZATIONS
 
@@ -25,8 +26,9 @@ class Option:
     Attributes:
         name: the Python keyword.
         default: its default value.
-        kind: ``"int"``, ``"float"``, ``"choice"`` (one of ``choices``), ``"choice-or-float"`` (one of ``choices``
-            or a finite number) or ``"range"`` (``(low, high)`` with low < high, in volume units).
+        kind: ``"int"``, ``"float"``, ``"choice"`` (one of ``choices``, any letter case), ``"choice-or-int"`` /
+            ``"choice-or-float"`` (one of ``choices`` or a number) or ``"range"`` (``(low, high)`` with low < high,
+            in volume units).
         help: one line for ``--help`` and tooltips.
         flag: the command-line flag.
         choices: allowed words, for the choice kinds.
@@ -54,9 +56,9 @@ class Option:
             return None
         if self.kind == "range":
             return self._check_range(value)
-        if self.kind in ("choice", "choice-or-float") and isinstance(value, str):
-            if value in self.choices:
-                return value
+        if self.choices and isinstance(value, str):
+            if value.lower() in self.choices:
+                return value.lower()
             if self.kind == "choice":
                 raise OptionError(f"{self.name} must be one of {', '.join(self.choices)}; got {value!r}")
         if self.kind == "choice":
@@ -64,14 +66,15 @@ class Option:
         return self._check_number(value)
 
     def _check_number(self, value: Any) -> Any:
-        what = "an integer" if self.kind == "int" else "a number"
-        if self.kind == "choice-or-float":
-            what = f"{', '.join(self.choices)} or a number"
+        whole = self.kind in ("int", "choice-or-int")
+        what = "an integer" if whole else "a number"
+        if self.choices:
+            what = f"{', '.join(self.choices)} or {what}"
         integral = isinstance(value, numbers.Integral) and not isinstance(value, bool)
         real = isinstance(value, numbers.Real) and not isinstance(value, bool)
-        if not (integral if self.kind == "int" else real) or not math.isfinite(value):
+        if not (integral if whole else real) or not math.isfinite(value):
             raise OptionError(f"{self.name} must be {what}{self._bounds_text()}; got {value!r}")
-        value = int(value) if self.kind == "int" else float(value)
+        value = int(value) if whole else float(value)
         if (self.minimum is not None and value < self.minimum) or (self.maximum is not None and value > self.maximum):
             raise OptionError(f"{self.name} must be {what}{self._bounds_text()}; got {value!r}")
         return value
@@ -120,6 +123,12 @@ OPTIONS: dict[str, Option] = {
                choices=BACKGROUND_RULES),
         Option("unconverged", "raise-damping", "choice", "what to do when affinity propagation does not converge",
                "--unconverged", choices=UNCONVERGED_RULES),
+        Option("tissues", "auto", "choice-or-int", "tissues the classes are grouped into: auto, all (one per class, "
+               "the thesis) or a count", "--tissues", choices=("auto", "all"), minimum=1, metavar="auto|all|N"),
+        Option("colors", "ramp", "choice", "tissue colours: an intensity-ordered ramp (dark red, tan, ivory, white) "
+               "or a distinct qualitative palette", "--colors", choices=COLOR_SCHEMES),
+        Option("modality", None, "choice", "kind of volume, which sets the opacity curve", "--modality",
+               choices=KINDS, none_means="detected from the data type and value range"),
     )
 }  # fmt: skip
 

@@ -19,8 +19,13 @@ VP_JSON_SCHEMA = (
     "https://raw.githubusercontent.com/slicer/slicer/main/Modules/Loadable/VolumeRendering/Resources/Schema/"
     "volume-property-schema-v1.0.0.json#"
 )
-# Width of a step between two bins, as a fraction of the value range: far below one bin even at 4096 bins.
-STEP_FRACTION = 1e-6
+# VTK's GPU ray caster samples each function into a lookup table of range / (smallest distance between two points)
+# entries (vtkOpenGLVolumeLookupTable::ComputeIdealTextureSize via EstimateMinNumberOfSamples) and, past the
+# OpenGL texture limit (8192-32768 here and there), warns and falls back to a table too coarse for the steps.
+# A step between two bins is therefore a quarter of a bin, and never narrower than 1/4096 of the value range:
+# at most 4096 entries for up to 1024 bins, under every OpenGL limit, and still sharp (a bin is 1/256 of the range).
+MAX_TABLE_SIZE = 4096
+STEP_BINS = 0.25
 
 # Lighting like Slicer's CT presets: shaded, mostly diffuse.
 AMBIENT, DIFFUSE, SPECULAR, SPECULAR_POWER = 0.2, 0.8, 0.2, 10.0
@@ -61,12 +66,20 @@ def piecewise_constant(edges: np.ndarray, bin_color: np.ndarray, bin_opacity: np
     look = np.column_stack([np.asarray(bin_color, dtype=np.float64), np.asarray(bin_opacity, dtype=np.float64)])
     starts = np.concatenate(([0], np.flatnonzero(np.any(look[1:] != look[:-1], axis=1)) + 1))
     ends = np.concatenate((starts[1:], [look.shape[0]]))
-    step = STEP_FRACTION * (edges[-1] - edges[0])
+    step = step_width(edges)
     # Each run holds from its first edge to just before the next run's first edge (the last run to the top edge).
     x = np.column_stack([edges[starts], edges[ends] - step]).ravel()
     x[-1] = edges[-1]
     values = np.repeat(look[starts], 2, axis=0)
     return TransferFunctionPoints(x=x, color=values[:, :3], opacity=values[:, 3])
+
+
+def step_width(edges: np.ndarray) -> float:
+    """Width of a step between two neighbouring bins' looks, in volume units (see ``MAX_TABLE_SIZE``)."""
+    value_range = float(edges[-1] - edges[0])
+    bin_width = value_range / max(len(edges) - 1, 1)
+    # Half a bin at most, so the points stay strictly increasing when more than 2048 bins make the table larger.
+    return min(max(STEP_BINS * bin_width, value_range / MAX_TABLE_SIZE), 0.5 * bin_width)
 
 
 def fill_volume_property(volume_property, points: TransferFunctionPoints) -> None:
@@ -90,7 +103,7 @@ def configure_volume_property(volume_property, unit_distance: float = 1.0) -> No
     """Shading, lighting and interpolation of our transfer functions, and a constant gradient opacity.
 
     Args:
-        unit_distance: scalar opacity unit distance in mm (the voxel spacing makes opacity per voxel step).
+        unit_distance: scalar opacity unit distance in mm (1: opacity per millimetre, as in Slicer's presets).
     """
     from vtkmodules.vtkCommonDataModel import vtkPiecewiseFunction
 

@@ -1,0 +1,105 @@
+"""The default look: kind of volume, ramp colours, opacity rules, opacity per millimetre."""
+
+import numpy as np
+import pytest
+
+from IsoSimilarityTFLib import design_transfer_function
+from IsoSimilarityTFLib.classes import IsovalueClass
+from IsoSimilarityTFLib.look import RAMP, default_look, detect_kind, ramp_colors
+
+
+def make_classes(voxels, contact=None, background=0):
+    contact = contact or [0.0] * len(voxels)
+    return [
+        IsovalueClass(
+            id=i, rank=1, voxels=v, fraction=0.0, isovalue_bins=[i], value_ranges=[[i, i + 1]], exemplar_bin=i,
+            background=i == background, background_contact=contact[i],
+        )
+        for i, v in enumerate(voxels)
+    ]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("dtype", "value_range", "modality", "kind"),
+    [
+        (np.int16, (-1024, 3071), None, "ct"),
+        (np.float32, (-1000.0, 2000.0), None, "ct"),
+        (np.int16, (0, 4095), None, "mr"),
+        (np.float32, (0.0, 1.0), None, "mr"),
+        (np.uint8, (0, 254), None, "8bit"),
+        (np.int16, (0, 200), None, "8bit"),
+        (np.int16, (0, 4095), "CT", "ct"),
+        (np.int16, (-1024, 3071), "MR", "mr"),
+    ],
+)
+def test_kind_detection(dtype, value_range, modality, kind):
+    assert detect_kind(np.dtype(dtype), value_range, modality) == kind
+
+
+def test_unknown_modality_is_refused():
+    with pytest.raises(ValueError, match="modality"):
+        detect_kind(np.dtype(np.int16), (0, 1), "PET")
+
+
+def test_ramp_is_ordered_dark_red_to_white():
+    places = np.linspace(0, 1, 6)
+    colors = ramp_colors(places)
+    brightness = colors.sum(axis=1)
+    assert np.all(np.diff(brightness) > 0)
+    np.testing.assert_allclose(colors[0], RAMP[0][1])
+    np.testing.assert_allclose(colors[-1], [1, 1, 1])
+    assert colors[0][0] > 2 * colors[0][2]  # red, not grey
+
+
+def test_tissue_colours_follow_intensity_and_are_shared_by_their_classes():
+    classes = make_classes([1000, 300, 300, 200, 200, 100])
+    tissue_of = np.array([0, 1, 1, 2, 2, 3])
+    colors, _, visible = default_look(classes, tissue_of, np.arange(6.0), "mr")
+    assert colors[1] == colors[2] and colors[3] == colors[4]
+    brightness = [sum(colors[c]) for c in (1, 3, 5)]
+    assert brightness == sorted(brightness) and len(set(brightness)) == 3
+    assert not visible[0] and all(visible[1:])
+    distinct, _, _ = default_look(classes, tissue_of, np.arange(6.0), "mr", colors="distinct")
+    assert distinct[1] == distinct[2] and distinct[1] != distinct[3]
+
+
+def test_mr_opacity_peaks_at_the_main_tissue_not_the_brightest():
+    # Background, CSF-like, grey, white (the main bright tissue), then 3 % of bright fat.
+    classes = make_classes([5000, 300, 3000, 3000, 180])
+    tissue_of = np.arange(5)
+    _, opacity, visible = default_look(classes, tissue_of, np.arange(5.0), "mr")
+    assert opacity[0] == 0 and opacity[1] < opacity[2] < opacity[3]
+    assert visible[4] and opacity[4] < opacity[2]  # shown, never emphasised
+
+
+def test_densest_real_tissue_is_always_shown_and_tiny_classes_never_stand_out():
+    # Four soft classes, one real dense class, one class of 3 voxels denser still.
+    classes = make_classes([100000, 40000, 30000, 20000, 10000, 5000, 3])
+    values = np.array([-1000, 0, 40, 60, 80, 1200, 2500.0])
+    tissue_of = np.arange(7)
+    _, opacity, visible = default_look(classes, tissue_of, values, "ct", max_shown=2)
+    assert visible[5]  # beyond the size cut but the densest real tissue
+    assert opacity[5] == max(opacity) and opacity[6] <= opacity[5]
+    assert max(opacity[1:5]) < 0.05  # soft tissue nearly clear, no veil
+
+
+def test_fringe_classes_start_hidden():
+    classes = make_classes([1000, 50, 500], contact=[1.0, 0.9, 0.1])
+    _, _, visible = default_look(classes, np.arange(3), np.arange(3.0), "mr")
+    assert visible == [False, False, True]
+
+
+def test_opacity_is_per_millimetre_whatever_the_spacing():
+    values = np.zeros((16, 16, 16), dtype=np.int16) - 1000
+    values[4:12, 4:12, 4:12] = 1000
+    fine = design_transfer_function(values, (0.5, 0.5, 0.5))
+    coarse = design_transfer_function(values, (2.0, 2.0, 2.0))
+    assert fine.unit_distance == coarse.unit_distance == 1.0
+    assert fine.volume_property().GetScalarOpacityUnitDistance() == 1.0
+
+
+def test_modality_option_chooses_the_curve():
+    rng = np.random.default_rng(0)
+    values = np.where(np.indices((20, 20, 20)).sum(axis=0) > 25, 1000, 100) + rng.normal(0, 10, (20, 20, 20))
+    assert design_transfer_function(values).kind == "mr"
+    assert design_transfer_function(values, modality="CT").kind == "ct"

@@ -1,0 +1,174 @@
+"""Tissues: the intensity model, the contiguous grouping, every regrouping, and their round trip."""
+
+import json
+import time
+
+import numpy as np
+import pytest
+
+from IsoSimilarityTFLib import TransferFunctionDesign, design_transfer_function
+from IsoSimilarityTFLib.tissues import (
+    TissueHierarchy,
+    choose_intensity_model,
+    contiguous_assignment,
+    fit_intensity_model,
+    kmeans_1d,
+)
+from isosimtf.phantom import head_phantom
+
+
+def histogram(means, sd, counts, n_bins=256, seed=0):
+    rng = np.random.default_rng(seed)
+    values = np.concatenate([rng.normal(m, sd, n) for m, n in zip(means, counts)])
+    return np.bincount(np.clip(np.round(values), 0, n_bins - 1).astype(int), minlength=n_bins).astype(float)
+
+
+@pytest.fixture(scope="module")
+def design():
+    phantom = head_phantom(48, seed=1)
+    return design_transfer_function(phantom.values, phantom.spacing)
+
+
+def test_model_finds_three_separated_tissues():
+    counts = histogram([60, 130, 200], 6.0, [20000, 50000, 30000])
+    model = choose_intensity_model(counts)
+    assert model.n_tissues == 3
+    np.testing.assert_allclose(model.means, [60, 130, 200], atol=1.5)
+    assert model.sd == pytest.approx(6.0, rel=0.15)
+    posterior = model.tissue_posterior(np.array([60.0, 130.0, 200.0]))
+    np.testing.assert_array_equal(posterior.argmax(axis=1), [0, 1, 2])
+
+
+def test_partial_volume_ramp_is_not_a_tissue():
+    # Two tissues and the voxels mixing them (uniform fractions): a pure Gaussian mixture would put a tissue on the
+    # ramp; the partial-volume model explains it by the mixel and splits it at the midpoint.
+    rng = np.random.default_rng(1)
+    fractions = rng.uniform(0, 1, 30000)
+    mixed = 80 * (1 - fractions) + 180 * fractions + rng.normal(0, 5, fractions.size)
+    pure = np.concatenate([rng.normal(80, 5, 60000), rng.normal(180, 5, 60000)])
+    counts = np.bincount(np.clip(np.round(np.concatenate([pure, mixed])), 0, 255).astype(int), minlength=256)
+    model = choose_intensity_model(counts.astype(float))
+    assert model.n_tissues == 2
+    posterior = model.tissue_posterior(np.arange(256.0))
+    assert abs(int(np.argmax(posterior[:, 1] > 0.5)) - 130) <= 3
+
+
+def test_em_never_lowers_the_likelihood_and_starts_matter_little():
+    counts = histogram([40, 100, 170], 8.0, [30000, 30000, 30000])
+    a = fit_intensity_model(counts, np.array([40.0, 100.0, 170.0]))
+    b = fit_intensity_model(counts, kmeans_1d(np.arange(256.0), counts, 3))
+    assert a.log_likelihood == pytest.approx(b.log_likelihood, abs=1e-3)
+
+
+def test_kmeans_1d_is_optimal_on_a_small_case():
+    x = np.arange(10.0)
+    w = np.array([5, 5, 0, 0, 0, 3, 3, 0, 1, 1.0])
+    np.testing.assert_allclose(kmeans_1d(x, w, 3), [0.5, 5.5, 8.5])
+
+
+def test_contiguous_assignment_is_monotone_and_optimal():
+    mass = np.array([[9, 1, 0], [1, 8, 0], [7, 2, 1], [0, 1, 9], [3, 0, 2]], dtype=float)
+    assignment = contiguous_assignment(mass)
+    assert np.all(np.diff(assignment) >= 0)
+    # Brute force over every non-decreasing labelling.
+    import itertools
+
+    best = max(
+        (sum(mass[r, t] for r, t in enumerate(labels)), labels)
+        for labels in itertools.product(range(3), repeat=5)
+        if all(a <= b for a, b in zip(labels, labels[1:]))
+    )
+    assert sum(mass[r, t] for r, t in enumerate(assignment)) == best[0]
+
+
+def test_every_count_is_valid_contiguous_and_nested(design):
+    hierarchy = design.hierarchy
+    order = list(hierarchy.order)
+    assert 1 <= hierarchy.auto <= hierarchy.max_tissues == len(design.classes) - 1
+    previous_cuts: set = set()
+    for n in range(1, hierarchy.max_tissues + 1):
+        groups = hierarchy.groups(n)
+        assert len(groups) == n and [c for g in groups for c in g] == order  # runs of the intensity order
+        cuts = {order.index(g[0]) for g in groups[1:]}
+        assert previous_cuts <= cuts  # nested: going from n to n + 1 tissues splits one tissue
+        previous_cuts = cuts
+    with pytest.raises(ValueError):
+        hierarchy.groups(hierarchy.max_tissues + 1)
+
+
+def test_regroup_is_instant_and_consistent(design):
+    similarity = design.similarity
+    start = time.perf_counter()
+    for n in range(1, design.hierarchy.max_tissues + 1):
+        design.regroup(n)
+        assert design.n_tissues == n
+        members = sorted(c for t in design.tissues for c in t.classes)
+        assert members == list(range(len(design.classes)))
+        for t in design.tissues:
+            assert all(design.classes[c].color == t.color for c in t.classes if design.classes[c].visible)
+    elapsed = (time.perf_counter() - start) / design.hierarchy.max_tissues
+    assert elapsed < 0.05  # nothing heavy is recomputed
+    assert design.similarity is similarity
+    design.regroup("auto")
+    assert design.n_tissues == design.hierarchy.auto
+
+
+def test_all_is_the_thesis_classes(design):
+    design.regroup("all")
+    assert len(design.tissues) == len(design.classes)
+    assert all(t.classes == [t.classes[0]] for t in design.tissues)
+    thesis = design_transfer_function(head_phantom(48, seed=1).values, tissues="all")
+    np.testing.assert_array_equal(thesis.labels, design.labels)
+    assert [t.classes for t in thesis.tissues] == [t.classes for t in design.tissues]
+
+
+def test_tissue_edits_write_through_and_solo(design):
+    design.regroup("auto")
+    target = next(t for t in design.tissues if t.visible and len(t.classes) > 1)
+    design.set_tissue(target.id, color=(0.1, 0.2, 0.3), opacity=0.4)
+    assert all(design.classes[c].color == [0.1, 0.2, 0.3] for c in target.classes)
+    assert all(design.classes[c].opacity == 0.4 for c in target.classes)
+    design.solo_tissue(target.id)
+    _, opacity = design.bin_looks()
+    shown_bins = {b for c in target.classes for b in design.classes[c].isovalue_bins}
+    assert set(np.flatnonzero(opacity)) <= shown_bins and np.any(opacity)
+    design.solo(target.classes[0])
+    assert design.solo_tissue_id is None
+    design.solo_tissue(None)
+    design.set_tissue(target.id, visible=False)
+    assert not any(design.is_shown(c) for c in target.classes)
+    with pytest.raises(KeyError):
+        design.set_tissue(len(design.tissues), opacity=0.5)
+
+
+def test_json_round_trip_keeps_tissues(design):
+    design.regroup(2)
+    design.set_tissue(design.tissues[-1].id, color=(0.9, 0.1, 0.1))
+    design.solo_tissue(design.tissues[-1].id)
+    data = json.loads(design.to_json())
+    assert len(data["tissues"]) == len(design.tissues)
+    assert set(data["tissues"][0]) >= {"id", "classes", "value_ranges", "voxels", "color", "opacity", "visible"}
+    assert all("tissue" in c for c in data["classes"])
+    back = TransferFunctionDesign.from_json(design.to_json())
+    assert back.to_dict() == design.to_dict()
+    back.regroup(3)  # the hierarchy travels with the design: regrouping needs no similarity
+    assert back.n_tissues == 3 and back.similarity is None
+    broken = dict(data, tissues=data["tissues"][:-1])
+    with pytest.raises(ValueError, match="not a valid"):
+        TransferFunctionDesign.from_dict(broken)
+
+
+def test_hierarchy_round_trip_and_validation():
+    hierarchy = TissueHierarchy(order=(1, 2, 3, 4), boundaries=(2, 1, 3), auto=2)
+    assert TissueHierarchy.from_dict(hierarchy.to_dict()) == hierarchy
+    assert hierarchy.groups(2) == [[1, 2], [3, 4]]
+    with pytest.raises(ValueError):
+        TissueHierarchy.from_dict({"order": [1, 2, 3], "boundaries": [1], "auto": 1})
+
+
+def test_tissues_option_is_checked():
+    values = np.random.default_rng(0).normal(0, 1, (12, 12, 12))
+    with pytest.raises(ValueError, match="tissues"):
+        design_transfer_function(values, tissues="some")
+    with pytest.raises(ValueError, match="colors"):
+        design_transfer_function(values, colors="rainbow")
