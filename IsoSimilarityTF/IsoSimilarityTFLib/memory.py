@@ -47,18 +47,21 @@ def design_memory_bytes(shape: tuple, n_bins: int) -> int:
     return int(voxels * index_bytes * _BYTES_PER_VOXEL + _MATRICES * 8 * n_bins * n_bins + _OVERHEAD_BYTES)
 
 
-def check_memory(shape: tuple, n_bins: int) -> None:
+def check_memory(shape: tuple, n_bins: Optional[int], *, input_bytes: int = 0) -> None:
     """Raise :class:`InsufficientMemoryError` when the design would need more memory than is available.
 
-    A bad ``n_bins`` is let through: the step that uses it says what is wrong with it.
+    Args:
+        shape: the volume's shape.
+        n_bins: the number of bins; None (or a bad value, which the step that uses it reports) counts the input only.
+        input_bytes: bytes still to be allocated for the volume itself (a reader checking a header before reading).
     """
-    if isinstance(n_bins, bool) or not isinstance(n_bins, int) or not 2 <= n_bins <= MAX_BINS:
-        return
+    valid_bins = not isinstance(n_bins, bool) and isinstance(n_bins, int) and 2 <= n_bins <= MAX_BINS
     available = available_memory_bytes()
-    needed = design_memory_bytes(shape, n_bins)
+    needed = int(input_bytes) + (design_memory_bytes(shape, n_bins) if valid_bins else 0)  # type: ignore[arg-type]
     if available is not None and needed > available:
         dims = " x ".join(str(int(n)) for n in shape)
+        bins = f" with {n_bins} bins" if valid_bins else ""
         raise InsufficientMemoryError(
-            f"a volume of {dims} voxels with {n_bins} bins needs about {needed / 2**30:.1f} GB of memory and "
+            f"a volume of {dims} voxels{bins} needs about {needed / 2**30:.1f} GB of memory and "
             f"{available / 2**30:.1f} GB are available: crop or downsample the volume, or use fewer bins"
         )
