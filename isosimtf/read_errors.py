@@ -1,7 +1,7 @@
 """How a failed read is reported: one line naming the file, never the C++ libraries' own printing.
 
 VTK reports errors through its output window and its logger; ITK and teem also write straight to the process's
-standard error. During a read both are captured (VTK's messages into a string output window, file descriptor 2 into
+standard error. During a read both are captured (VTK's messages as the renderer captures them, file descriptor 2 into
 a temporary file), and the first meaningful line can become the reason of a :class:`VolumeReadError`.
 """
 
@@ -15,12 +15,6 @@ from pathlib import Path
 
 from IsoSimilarityTFLib.errors import VolumeReadError
 
-_VTK_LOG_PREFIX = re.compile(r"^.*?(ERR|WARN)\|\s*")
-_VTK_OBJECT = re.compile(r"^\s*vtk\w*\s*\(0x[0-9a-fA-F]+\):\s*")
-_VTK_LEGACY_PREFIX = re.compile(
-    r"^\s*(ERROR|WARNING|Warning|Error|Generic Warning)?:?\s*In\s+\S+,\s*line\s+\d+\s*", re.I
-)
-_ANSI = re.compile(r"\x1b\[[0-9;]*m")
 # VTK's pipeline failure ("Algorithm ... returned failure for request: vtkInformation", then an indented dump of the
 # request) only says that the reader failed, never why.
 _NOISE = "returned failure for request"
@@ -32,42 +26,34 @@ _TEEM_PREFIX = re.compile(r"^\[\w+\]\s*\w+:\s*")
 def captured_native_output() -> Iterator[list[str]]:
     """Capture VTK's messages and everything written to file descriptor 2 during the block.
 
-    Yields a list that, once the block ends, holds the captured text (one string per source, possibly empty).
+    Yields a list that, once the block ends, holds the captured texts: VTK's messages one by one (through
+    :func:`.rendering.captured_vtk_messages`), then what ITK and teem wrote to stderr.
     """
-    from vtkmodules.vtkCommonCore import vtkLogger, vtkOutputWindow, vtkStringOutputWindow
+    from .rendering import captured_vtk_messages
 
-    previous = vtkOutputWindow.GetInstance()
-    window = vtkStringOutputWindow()
-    vtkOutputWindow.SetInstance(window)
-    # VTK built with its logger also logs warnings and errors to stderr on its own; mute that sink meanwhile.
-    cutoff = vtkLogger.GetCurrentVerbosityCutoff()
-    vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_OFF)
     texts: list[str] = []
     sys.stderr.flush()
     saved_fd = os.dup(2)
-    with tempfile.TemporaryFile(mode="w+b") as sink:
-        os.dup2(sink.fileno(), 2)
-        try:
-            yield texts
-        finally:
-            os.dup2(saved_fd, 2)
-            os.close(saved_fd)
-            vtkLogger.SetStderrVerbosity(vtkLogger.ConvertToVerbosity(cutoff))
-            vtkOutputWindow.SetInstance(previous)
+    try:
+        with tempfile.TemporaryFile(mode="w+b") as sink:
+            with captured_vtk_messages() as messages:
+                os.dup2(sink.fileno(), 2)
+                try:
+                    yield texts
+                finally:
+                    os.dup2(saved_fd, 2)
             sink.seek(0)
-            texts.extend([window.GetOutput() or "", sink.read().decode("utf-8", "replace")])
+            texts.extend([*messages, sink.read().decode("utf-8", "replace")])
+    finally:
+        os.close(saved_fd)
 
 
 def first_message(texts: list[str]) -> str:
-    """The first meaningful line of captured C++ output, without log prefixes, object addresses or colours."""
+    """The first meaningful line of captured C++ output (VTK's messages come without heads and object ids)."""
     for text in texts:
-        for line in _ANSI.sub("", text).splitlines():
-            if line.startswith((" ", "\t")):
-                continue
-            line = _VTK_LOG_PREFIX.sub("", line)
-            line = _VTK_LEGACY_PREFIX.sub("", line)
-            line = _VTK_OBJECT.sub("", line).strip()
-            if line and not line.startswith("ERROR:") and _NOISE not in line:
+        for line in text.splitlines():
+            line = line.strip()
+            if line and _NOISE not in line:
                 return line
     return ""
 

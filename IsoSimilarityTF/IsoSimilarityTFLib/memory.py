@@ -21,7 +21,17 @@ _OVERHEAD_BYTES = 256 << 20
 
 
 def available_memory_bytes() -> Optional[int]:
-    """Memory available to a new allocation without swapping, in bytes; None where the system does not say."""
+    """Memory available to a new allocation, in bytes; None where the system does not say.
+
+    The smallest of: the system's available memory, what the process's address-space limit (``ulimit -v``) leaves,
+    and what its container's memory limit (cgroup v2 ``memory.max``) leaves. Any of them refuses an allocation.
+    """
+    limits = [_system_available(), _address_space_left(), _cgroup_left()]
+    known = [n for n in limits if n is not None]
+    return max(0, min(known)) if known else None
+
+
+def _system_available() -> Optional[int]:
     try:
         with open("/proc/meminfo", encoding="ascii") as meminfo:
             for line in meminfo:
@@ -32,6 +42,32 @@ def available_memory_bytes() -> Optional[int]:
     try:
         return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
     except (AttributeError, OSError, ValueError):
+        return None
+
+
+def _address_space_left() -> Optional[int]:
+    try:
+        import resource
+
+        limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+        if limit == resource.RLIM_INFINITY:
+            return None
+        with open("/proc/self/statm", encoding="ascii") as statm:
+            used = int(statm.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+        return limit - used
+    except (ImportError, OSError, ValueError, AttributeError):
+        return None
+
+
+def _cgroup_left() -> Optional[int]:
+    try:
+        with open("/sys/fs/cgroup/memory.max", encoding="ascii") as handle:
+            text = handle.read().strip()
+        if text == "max":
+            return None
+        with open("/sys/fs/cgroup/memory.current", encoding="ascii") as handle:
+            return int(text) - int(handle.read().strip())
+    except (OSError, ValueError):
         return None
 
 
