@@ -388,8 +388,19 @@ def test_small_files_claiming_huge_volumes_are_refused_from_the_header(tmp_path:
         b"ObjectType = Image\nNDims = 3\nCompressedData = True\nCompressedDataSize = 20\nDimSize = 2048 2048 512\n"
         b"ElementType = MET_SHORT\nElementDataFile = LOCAL\n" + zlib.compress(bytes(100))
     )
+    (tmp_path / "data.raw.gz").write_bytes(gzip.compress(bytes(100)))
+    files.append(tmp_path / "detached.nhdr")
+    files[-1].write_text(
+        f"NRRD0004\ntype: short\ndimension: 3\nsizes: {huge}\nendian: little\nencoding: gzip\n"
+        "data file: data.raw.gz\n\n"
+    )
+    files.append(tmp_path / "detached.mhd")
+    files[-1].write_text(
+        "ObjectType = Image\nNDims = 3\nDimSize = 2048 2048 512\nElementType = MET_SHORT\nCompressedData = True\n"
+        "ElementDataFile = data.raw.gz\n"
+    )
     for path in files:
-        assert "2048 x 2048 x 512 voxels of int16 (4096 MiB), more than a file of" in _read_error(path, capfd)
+        assert "2048 x 2048 x 512 voxels of int16 (4096 MiB), more than its" in _read_error(path, capfd)
 
 
 def test_ascii_nrrd_is_read_correctly(tmp_path: Path) -> None:

@@ -20,6 +20,7 @@ can hold (a gzip stream expands at most about 1032 times), and small enough for 
 import gzip
 import os
 import plistlib
+import re
 import struct
 import tarfile
 import zlib
@@ -170,18 +171,31 @@ def _stem(path: Path) -> str:
     return path.name[: -len(suffix)] if suffix and len(suffix) < len(path.name) else path.name
 
 
-def _deflated_or_raw(path: Path) -> bool:
-    """Whether the voxels are in ``path`` itself, raw, as text or deflated (gzip, zlib): the ratio bound holds.
+#: The one header field the size bound needs from a detached header: where its voxels are.
+_DATA_FILE_FIELD = re.compile(r"^(?:data ?file:|ElementDataFile\s*=)[ \t]*(.*?)[ \t]*$", re.I | re.M)
 
-    Not so for detached headers (.nhdr, .mhd: the data file is elsewhere) and bzip2 NRRD (which expands further).
+
+def _stored_bytes(path: Path, files: tuple[Path, ...]) -> Optional[int]:
+    """Bytes on disk that hold the voxels, when they are raw, text or deflated (gzip, zlib); else None.
+
+    The header of a ``.nhdr`` / ``.mhd`` names its data file (one field read here); a NRRD in bzip2 (which expands
+    further than deflate) or whose data is a list or pattern of files gives None: only the memory bound applies.
     """
     lower = path.name.lower()
-    if lower.endswith((".nhdr", ".mhd")):
-        return False
-    if lower.endswith(".nrrd"):
-        with open(path, "rb") as handle:
-            return b"\nencoding: bz" not in handle.read(4096).lower()
-    return True
+    if not lower.endswith((".nrrd", ".nhdr", ".mhd")):
+        return sum(f.stat().st_size for f in files)
+    with open(path, "rb") as handle:
+        head = handle.read(1 << 16).decode("latin-1")
+    if re.search(r"^encoding:[ \t]*bz", head, re.I | re.M):
+        return None
+    field = _DATA_FILE_FIELD.search(head)
+    if field is None or field.group(1).upper() == "LOCAL":
+        return path.stat().st_size  # the voxels follow the header
+    name = field.group(1)
+    if len(name.split()) > 1 or name.upper().startswith("LIST") or "%" in name:
+        return None
+    data = path.parent / name
+    return path.stat().st_size + (data.stat().st_size if data.is_file() else 0)
 
 
 def _check_size(
@@ -210,15 +224,15 @@ def _check_size(
     if stored_bytes is not None and voxel_bytes > stored_bytes * _MAX_DEFLATE_RATIO:
         raise cannot_read(
             path,
-            f"its header announces {size} voxels of {dtype.name} ({voxel_bytes / 2**20:.0f} MiB), more than a file "
-            f"of {stored_bytes} bytes can hold: it is truncated or corrupt",
+            f"its header announces {size} voxels of {dtype.name} ({voxel_bytes / 2**20:.0f} MiB), more than its "
+            f"{stored_bytes} bytes on disk can hold: it is truncated or corrupt",
         )
     check_memory(tuple(int(d) for d in dimensions[::-1]), n_bins, input_bytes=voxel_bytes)
 
 
 def _read_with_slicer(path: Path, files: tuple[Path, ...], name: str, n_bins: Optional[int]) -> Volume:
     header = slicer_readers.read_header(path, files)
-    stored = sum(f.stat().st_size for f in header.files) if _deflated_or_raw(path) else None
+    stored = _stored_bytes(path, header.files)
     _check_size(path, header.dimensions, header.components, header.dtype, n_bins, stored)
     if path.name.lower().endswith((".nii", ".nii.gz")):
         _check_nifti_complete(path, int(np.prod(header.dimensions)) * header.dtype.itemsize)
