@@ -475,6 +475,15 @@ def test_two_dicom_series_in_one_folder(tmp_path: Path, capfd) -> None:
     np.testing.assert_allclose(second.spacing[2], 30.0, atol=1e-6)
 
 
+def test_dicom_series_with_slices_sharing_a_position(tmp_path: Path, capfd) -> None:
+    """Two volumes under one Series Instance UID (e.g. two echoes) are not one volume."""
+    values = np.random.default_rng(4).integers(-1000, 2000, size=(3, 7, 9)).astype(np.int16)
+    folder = tmp_path / "echoes"
+    _write_series(folder, values, 0.0, 2.5, "E2")  # the series UID is left as it is
+    _write_series(folder, values, 0.0, 2.5, "F2")
+    assert "several slices of the series share one position" in _read_error(folder, capfd)
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # Real data (Debian packages invesalius-examples and mricron-data; skipped when absent)
 # ---------------------------------------------------------------------------------------------------------------

@@ -137,7 +137,7 @@ def run(
                 ) from None
             timings["render"] = time.perf_counter() - start
     finally:
-        removed = remove_stale(path, previous, [*result.written(), path / "classes.json"])
+        removed = remove_stale(path, previous, result.written())
         if removed:
             progress.finish()
             warning(

@@ -109,10 +109,12 @@ def read_header(path: Path, files: tuple[Path, ...]) -> ImageHeader:
 
 
 def _dicom_tags(path: Path) -> dict[str, str]:
-    """The DICOM tags of one file (``"gggg|eeee"`` keys), as the reader's header pass gives them; {} if unreadable."""
+    """The DICOM tags of one file (``"gggg|eeee"`` keys), as the reader's header pass gives them; {} if unreadable.
+
+    Call within :func:`captured_native_output`: an unreadable file makes the reader print.
+    """
     reader = _reader((path,))
-    with captured_native_output():
-        reader.UpdateInformation()
+    reader.UpdateInformation()
     if reader.GetErrorCode():
         return {}
     count = reader.GetNumberOfItemsInDictionary()
@@ -146,10 +148,11 @@ def dicom_series(path: Path) -> tuple[Path, ...]:
     if not dicom:
         raise cannot_read(path, f"no DICOM files found in the folder ({len(files)} other file(s))")
     series: dict[str, list[tuple[Path, dict[str, str]]]] = {}
-    for file in dicom:
-        tags = _dicom_tags(file)
-        if tags:
-            series.setdefault(tags.get("0020|000e", ""), []).append((file, tags))
+    with captured_native_output():
+        for file in dicom:
+            tags = _dicom_tags(file)
+            if tags:
+                series.setdefault(tags.get("0020|000e", ""), []).append((file, tags))
     if path.is_dir() and len(series) > 1:
         listed = "; ".join(f"{len(members)} file(s) from {members[0][0].name}" for members in series.values())
         raise cannot_read(

@@ -185,7 +185,7 @@ def _stored_bytes(path: Path, files: tuple[Path, ...]) -> Optional[int]:
     if not lower.endswith((".nrrd", ".nhdr", ".mhd")):
         return sum(f.stat().st_size for f in files)
     with open(path, "rb") as handle:
-        head = handle.read(1 << 16).decode("latin-1")
+        head = handle.read(1 << 16).decode("latin-1").split("\n\n", 1)[0]  # the header only, not the voxels
     if re.search(r"^encoding:[ \t]*bz", head, re.I | re.M):
         return None
     field = _DATA_FILE_FIELD.search(head)
