@@ -8,22 +8,25 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 
-from test_volume_io import _rotation
+from test_volume_io import _right_handed, _rotation
+from volume_writers import write_volume
 
 import IsoSimilarityTFLib
 import isosimtf
 from IsoSimilarityTFLib import __version__
-from IsoSimilarityTFLib.design import TransferFunctionDesign
+from IsoSimilarityTFLib.clustering import unconverged_advice
+from IsoSimilarityTFLib.design import TransferFunctionDesign, design_transfer_function
 from isosimtf import cli, console, figures, formatting, run
 from isosimtf.phantom import head_phantom
 from isosimtf.rendering import slicer_core_available
-from isosimtf.volume_io import Volume, write_volume
+from isosimtf.volume_io import Volume
 
 # The folders that hold the two packages, for a subprocess that runs without the editable install.
 PACKAGE_DIRS = [Path(package.__file__).resolve().parents[1] for package in (IsoSimilarityTFLib, isosimtf)]
@@ -58,10 +61,11 @@ def read_png(path: Path) -> np.ndarray:
     return np.ascontiguousarray(pixels[..., :3])
 
 
-def _small_volume(size: int = 32) -> Volume:
-    """A small head phantom with anisotropic spacing and an oblique, left-handed orientation."""
+def _small_volume(size: int = 32, left_handed: bool = True) -> Volume:
+    """A small head phantom with anisotropic spacing and an oblique orientation (left-handed by default)."""
     directions = _rotation(20.0, 2) @ _rotation(-10.0, 0)
-    directions[:, 2] *= -1.0
+    if left_handed:
+        directions[:, 2] *= -1.0
     return Volume(head_phantom(size, seed=3).values, (7.5, 6.5, 8.0), (12.5, -30.0, 4.0), directions, "head")
 
 
@@ -151,7 +155,8 @@ def test_outputs_exist_and_follow_the_schema(rendered: Path) -> None:
     assert source["path"].endswith("head.nrrd") and source["name"] == "head"
     assert source["shape"] == [48, 48, 48] and source["dimensions"] == [48, 48, 48]
     np.testing.assert_allclose(source["spacing"], (7.5, 6.5, 8.0), atol=1e-6)
-    np.testing.assert_allclose(source["ijk_to_ras"], _small_volume(48).ijk_to_ras(), atol=1e-6)
+    # Slicer's reader gives a left-handed volume a right-handed index frame (slices reversed).
+    np.testing.assert_allclose(source["ijk_to_ras"], _right_handed(_small_volume(48)).ijk_to_ras(), atol=1e-5)
     # The design reloads from classes.json.
     design = TransferFunctionDesign.from_dict(document)
     assert [int(v) for v in design.labels] == document["labels"]
@@ -272,7 +277,9 @@ def _write_dicom_series(volume: Volume, folder: Path) -> None:
 
 
 def test_every_input_format_gives_the_same_classes(tmp_path: Path, capfd) -> None:
-    volume = _small_volume(24)
+    # Right-handed: Slicer's reader reverses the slices of a left-handed volume, .npy and .vti readers do not, and the
+    # octree tiles from index 0, so a reversed volume has other coarse cells.
+    volume = _small_volume(24, left_handed=False)
     sources = []
     for suffix in (".nrrd", ".nhdr", ".mha", ".mhd", ".nii", ".nii.gz", ".vti", ".npy"):
         path = tmp_path / f"head{suffix}"
@@ -499,7 +506,7 @@ def test_missing_arguments_and_output_file(tmp_path: Path, capfd) -> None:
     not_a_folder = tmp_path / "file"
     not_a_folder.write_text("x")
     code, _, err = _run(["phantom", "-o", not_a_folder, "--phantom-size", 16, "--no-render"], capfd)
-    assert code == 2 and err.strip() == f"isosimtf: error: the output path '{not_a_folder}' exists and is not a folder"
+    assert code == 2 and err.strip() == f"isosimtf: error: the output path '{not_a_folder}' is a file, not a folder"
 
 
 def test_unconverged_affinity_propagation_is_a_processing_error(tmp_path: Path, capfd) -> None:
@@ -520,6 +527,106 @@ def test_unconverged_affinity_propagation_is_a_processing_error(tmp_path: Path, 
     assert code == 1
     assert len(err.splitlines()) == 1 and err.startswith("isosimtf: error: affinity propagation did not converge")
     assert "Traceback" not in err and out == ""
+
+
+def test_unconverged_advice_never_suggests_what_was_given(tmp_path: Path, capfd) -> None:
+    argv = ["phantom", "-o", tmp_path / "out", "--phantom-size", 24, "--no-render", "-q", "--unconverged", "error"]
+    code, _, err = _run([*argv, "--max-iter", 2, "--damping", "0.95"], capfd)
+    assert code == 1 and "raise max_iter (e.g. 1000)" in err and "damping" not in err.split(";", 1)[1]
+    assert "raise max_iter" not in unconverged_advice(100_000, [0.5, 0.7, 0.9])  # the table's largest
+    assert unconverged_advice(1000, [0.5]).startswith("raise max_iter (e.g. 5000)")  # before: "e.g. 1000" again
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Issue 11: limits, the output folder (never delete what we did not write), warnings for a useless result
+# ---------------------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("options", "expected"),
+    [
+        (["--size", "40000"], "argument --size: must be from 32 to 4096, got 40000"),  # before: segfault
+        (["--phantom-size", "2000"], "argument --phantom-size: must be from 8 to 512, got 2000"),  # before: 111 s
+        (["--range", "5000", "6000"], "value_range [5000, 6000] lies outside the volume's values"),  # before: exit 0
+    ],
+    ids=["size", "phantom-size", "range-outside"],
+)
+def test_limits(tmp_path: Path, capfd, options: list[str], expected: str) -> None:
+    code, _, err = _run(["phantom", "--phantom-size", 16, "-o", tmp_path / "out", "-q", *options], capfd)
+    assert code == 2 and len(err.splitlines()) == 1 and expected in err, err
+    assert not (tmp_path / "out").exists()  # a failing run creates no output folder
+
+
+def test_negative_numbers_in_scientific_notation_are_values(tmp_path: Path, capfd) -> None:
+    """Before: 'argument --range: expected 2 arguments'."""
+    code, _, err = _run(["phantom", "--phantom-size", 16, "-o", tmp_path / "out", "-q", "--no-render",
+                         "--range", "-1e3", "3e3", "--preference", "-1e-1"], capfd)  # fmt: skip
+    assert code == 0, err
+    document = _load(tmp_path / "out")
+    assert document["value_range"] == [-1000.0, 3000.0] and document["options"]["preference"] == -0.1
+
+
+def test_output_path_is_checked_before_any_work(tmp_path: Path, capfd) -> None:
+    a_file = tmp_path / "file"
+    a_file.write_text("x")
+    for outdir, expected in (("", "the output folder is empty"), (a_file / "out", "lies under")):
+        code, _, err = _run(["phantom", "--phantom-size", 16, "-o", outdir, "--no-render"], capfd)
+        assert code == 2 and err.startswith("isosimtf: error: ") and expected in err, err
+        assert "[1/" not in err  # refused before reading the input
+
+
+def test_failing_run_leaves_no_folder(tmp_path: Path, capfd) -> None:
+    bad = tmp_path / "bad.npy"
+    bad.write_bytes(b"not a numpy file")
+    code, _, _ = _run([bad, "-o", tmp_path / "new" / "out", "--no-render", "-q"], capfd)
+    assert code == 2 and not (tmp_path / "new").exists()
+
+
+@needs_slicer
+def test_reruns_replace_only_our_files(tmp_path: Path, capfd) -> None:
+    outdir = tmp_path / "out"
+    (outdir / "scene").mkdir(parents=True)
+    (outdir / "scene" / "my notes.txt").write_text("mine")
+    (outdir / "my.png").write_text("mine")
+    code, _, err = _run(["phantom", "--phantom-size", 24, "--size", 64, "-o", outdir, "-q"], capfd)
+    assert code == 0, err
+    written = _load(outdir)["written"]
+    assert {"render.png", "classes.png", "scene/scene.mrml", "classes.json"} <= set(written)
+    assert all((outdir / name).is_file() for name in written)
+    assert (outdir / "scene" / "my notes.txt").read_text() == "mine"  # before: scene/ deleted wholesale
+
+    code, _, err = _run(["phantom", "--phantom-size", 24, "--no-render", "-o", outdir, "-q"], capfd)
+    assert code == 0
+    assert err.startswith("isosimtf: warning: removed") and "render.png" in err and "scene/scene.mrml" in err
+    assert not (outdir / "render.png").exists() and not (outdir / "scene" / "Data").exists()
+    assert (outdir / "scene" / "my notes.txt").is_file() and (outdir / "my.png").is_file()
+    assert set(_load(outdir)["written"]) == set(DATA_FILES)
+
+
+def test_useless_results_are_refused_or_warned(tmp_path: Path, capfd) -> None:
+    big = tmp_path / "int64.npy"  # before: exit 0, every voxel in bin 0, one class
+    np.save(big, np.int64(2**62) + np.random.default_rng(1).integers(0, 1000, (16, 16, 16)))
+    code, _, err = _run([big, "-o", tmp_path / "a", "--no-render", "-q"], capfd)
+    assert code == 2 and "subtract an offset" in err
+    labels = tmp_path / "labels.npy"  # before: exit 0, no word about it
+    volume = np.zeros((24, 24, 24), np.uint8)
+    volume[6:18, 6:18, 6:18], volume[9:15, 9:15, 9:15] = 1, 2
+    np.save(labels, volume)
+    code, _, err = _run([labels, "-o", tmp_path / "b", "--no-render", "-q"], capfd)
+    assert code == 0 and "isosimtf: warning: the volume holds at most 3 distinct integer values" in err
+    assert "label map" in err
+    design = design_transfer_function(head_phantom(16).values)
+    for item in design.classes:
+        design.set_class(item.id, visible=False)
+    (warning,) = run._design_warnings(SimpleNamespace(design=design))
+    assert "the transfer function shows nothing" in warning
+
+
+def test_many_bins_warn_that_clustering_is_slow() -> None:
+    info = {"value_min": -1000.0, "value_max": 3000.0, "dtype": "int16"}
+    assert run._input_warnings(info, 256) == []
+    (warning,) = run._input_warnings(info, 4096)
+    assert "4096 isovalues may take many minutes" in warning
 
 
 def test_without_slicer_core_rendering_is_skipped_with_a_warning(tmp_path: Path, capfd, monkeypatch) -> None:

@@ -5,6 +5,7 @@ import json
 
 import numpy as np
 import pytest
+from volume_writers import write_volume
 
 from IsoSimilarityTFLib.classes import IsovalueClass
 from IsoSimilarityTFLib.mrml import segment_name
@@ -12,7 +13,7 @@ from IsoSimilarityTFLib.quantize import quantize
 from isosimtf import cli
 from isosimtf.phantom import head_phantom
 from isosimtf.rendering import slicer_core_available
-from isosimtf.volume_io import Volume, write_volume
+from isosimtf.volume_io import Volume
 
 
 @pytest.mark.skipif(not slicer_core_available(), reason="slicer-core is not installed")

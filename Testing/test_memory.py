@@ -37,3 +37,16 @@ def test_cli_reports_it_in_one_line(monkeypatch, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert status == 1
     assert len(err) == 1 and err[0].startswith("isosimtf: error:") and "crop or downsample" in err[0]
+
+
+def test_available_memory_respects_process_and_container_limits(monkeypatch):
+    """Under `ulimit -v` or a container limit, the system's free memory overstates what an allocation can get."""
+    monkeypatch.setattr(memory, "_system_available", lambda: 20 << 30)
+    monkeypatch.setattr(memory, "_address_space_left", lambda: 5 << 30)
+    monkeypatch.setattr(memory, "_cgroup_left", lambda: None)
+    assert memory.available_memory_bytes() == 5 << 30
+    monkeypatch.setattr(memory, "_cgroup_left", lambda: 2 << 30)
+    assert memory.available_memory_bytes() == 2 << 30
+    monkeypatch.setattr(memory, "_address_space_left", lambda: None)
+    monkeypatch.setattr(memory, "_cgroup_left", lambda: None)
+    assert memory.available_memory_bytes() == 20 << 30

@@ -277,3 +277,15 @@ def test_uint16_bins_for_many_isovalues():
     slow = reference_similarity_matrix(bins, 1000)
     np.testing.assert_allclose(fast[np.ix_(bins_used, bins_used)], slow[np.ix_(bins_used, bins_used)], atol=1e-12)
     np.testing.assert_allclose(fast, slow, atol=1e-12)
+
+
+def test_memory_is_checked_before_any_work(monkeypatch):
+    """Before: numpy's MemoryError asking for 74.5 GiB, or the OOM killer."""
+    from IsoSimilarityTFLib import memory
+    from IsoSimilarityTFLib.errors import InsufficientMemoryError
+
+    with pytest.raises(ValueError, match="n_bins must be an integer from 2 to 4096"):
+        similarity_matrix(np.zeros((2, 2, 2), np.uint16), n_bins=100_000)
+    monkeypatch.setattr(memory, "available_memory_bytes", lambda: 1 << 20)
+    with pytest.raises(InsufficientMemoryError, match="4096 bins"):
+        similarity_matrix(np.zeros((4, 4, 4), np.uint16), n_bins=4096)

@@ -10,6 +10,7 @@ Set ``ISOSIMTF_DEBUG=1`` to get the Python traceback of a failure instead of the
 
 import argparse
 import os
+import re
 import sys
 from collections.abc import Sequence
 from typing import Any, Callable, NoReturn, Optional
@@ -24,8 +25,8 @@ from IsoSimilarityTFLib.options import OPTIONS, Option
 
 from . import __version__
 from .console import ProgressPrinter, summary_text
-from .inputs import DEFAULT_PHANTOM_SIZE
-from .outputs import DEFAULT_BACKDROP, DEFAULT_RAY_CASTING, DEFAULT_SIZE, DEFAULT_VIEW, MIN_SIZE
+from .inputs import DEFAULT_PHANTOM_SIZE, MAX_PHANTOM_SIZE, MIN_PHANTOM_SIZE
+from .outputs import DEFAULT_BACKDROP, DEFAULT_RAY_CASTING, DEFAULT_SIZE, DEFAULT_VIEW, MAX_SIZE, MIN_SIZE
 from .rendering import BACKDROPS, RAY_CASTING, VIEW_DIRECTIONS
 from .run import STAGES, run
 
@@ -33,8 +34,18 @@ PROG = "isosimtf"
 EXIT_OK, EXIT_PROCESSING, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 
+#: Any number argparse must take as a value, not an option: argparse's own pattern (``-1``, ``-.5``) misses
+#: ``-1e3`` before Python 3.13, so ``--range -1e3 3e3`` failed with "expected 2 arguments".
+_NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
+
+
 class _Parser(argparse.ArgumentParser):
     """An argument parser whose errors are one line: ``isosimtf: error: ...`` (no usage block)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        # No option of ours looks like a negative number, so every word matching this is a value (argparse's rule).
+        self._negative_number_matcher = _NEGATIVE_NUMBER
 
     def error(self, message: str) -> NoReturn:
         _print_error(f"{message} (see {self.prog} --help)")
@@ -51,14 +62,14 @@ def _print_warning(message: str) -> None:
     sys.stderr.flush()
 
 
-def _integer(minimum: int):
+def _integer(minimum: int, maximum: int) -> Callable[[str], int]:
     def parse(text: str) -> int:
         try:
             value = int(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"must be at least {minimum}, got {value}")
+        if not minimum <= value <= maximum:
+            raise argparse.ArgumentTypeError(f"must be from {minimum} to {maximum}, got {value}")
         return value
 
     return parse
@@ -121,14 +132,14 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=(
             "Outputs: similarity.npy, similarity.png, classes.json, transfer_function.vp.json, transfer_function.vp, "
             "and unless --no-render: render.png, classes.png, scene/scene.mrml. Exit status: 0 success, 2 usage or "
-            "input error, 1 processing error."
+            "input error, 1 processing error (including a volume too large for memory), 130 interrupted."
         ),
     )
     parser.add_argument(
         "input",
         metavar="INPUT",
-        help="volume file (.nrrd, .nhdr, .mha, .mhd, .nii, .nii.gz, .vti, .npy, .inv3), a DICOM series folder, "
-        "or the word 'phantom' for the built-in head phantom (write ./phantom for a file of that name)",
+        help="volume file (.nrrd, .nhdr, .mha, .mhd, .nii, .nii.gz, .vti, .npy, .inv3), a DICOM series folder or a "
+        "file of the series, or the word 'phantom' for the built-in head phantom (./phantom for a file of that name)",
     )
     parser.add_argument("-o", "--output", metavar="OUTDIR", required=True, help="output folder (created if missing)")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
@@ -151,7 +162,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     output.add_argument(
         "--size",
-        type=_integer(MIN_SIZE),
+        type=_integer(MIN_SIZE, MAX_SIZE),
         default=DEFAULT_SIZE,
         metavar="PIXELS",
         help="side of render.png in pixels; class tiles are half of it (default %(default)s)",
@@ -176,12 +187,12 @@ def build_parser() -> argparse.ArgumentParser:
     phantom = parser.add_argument_group("phantom (INPUT 'phantom')")
     phantom.add_argument(
         "--phantom-size",
-        type=_integer(8),
+        type=_integer(MIN_PHANTOM_SIZE, MAX_PHANTOM_SIZE),
         default=DEFAULT_PHANTOM_SIZE,
         metavar="N",
         help="voxels per axis (default %(default)s)",
     )
-    phantom.add_argument("--seed", type=_integer(0), default=0, help="phantom seed (default %(default)s)")
+    phantom.add_argument("--seed", type=_integer(0, 2**32 - 1), default=0, help="phantom seed (default %(default)s)")
     return parser
 
 

@@ -2,9 +2,12 @@
 
 import os
 from pathlib import Path
-from typing import Union
+from typing import Optional, Union
 
 import numpy as np
+
+from IsoSimilarityTFLib.errors import UsageError
+from IsoSimilarityTFLib.memory import check_memory
 
 from .volume_io import Volume, read_volume
 
@@ -13,6 +16,8 @@ PathLike = Union[str, "os.PathLike[str]"]
 #: The INPUT word that selects the built-in head phantom (a file or folder named so is read as ``./phantom``).
 PHANTOM_INPUT = "phantom"
 DEFAULT_PHANTOM_SIZE = 128
+#: Phantom sizes: 8 voxels is the smallest head with every tissue; 512^3 (the benchmark volume, ~1 min) the largest.
+MIN_PHANTOM_SIZE, MAX_PHANTOM_SIZE = 8, 512
 
 
 def is_phantom_input(source: PathLike) -> bool:
@@ -20,23 +25,32 @@ def is_phantom_input(source: PathLike) -> bool:
     return isinstance(source, str) and source == PHANTOM_INPUT
 
 
-def load_input(source: PathLike, *, phantom_size: int = DEFAULT_PHANTOM_SIZE, seed: int = 0) -> Volume:
+def load_input(
+    source: PathLike, *, phantom_size: int = DEFAULT_PHANTOM_SIZE, seed: int = 0, n_bins: Optional[int] = None
+) -> Volume:
     """Read the input volume: a file or DICOM folder (see :func:`read_volume`), or the word ``phantom``.
 
     The phantom is centred on the RAS origin. The word ``phantom`` always means the phantom; write ``./phantom`` to
-    read a file or folder of that name.
+    read a file or folder of that name. Whatever the input, its size is checked against the memory available
+    (counting the design with ``n_bins`` bins) before its voxels are read or made.
 
     Raises:
-        VolumeReadError: unreadable or unsupported input. ValueError: bad phantom size or seed.
+        VolumeReadError: unreadable or unsupported input. UsageError: phantom size out of bounds. ValueError: bad
+        seed. InsufficientMemoryError: the volume would not fit in memory.
     """
     if is_phantom_input(source):
         from .phantom import head_phantom
 
+        if not MIN_PHANTOM_SIZE <= phantom_size <= MAX_PHANTOM_SIZE:
+            raise UsageError(
+                f"the phantom size must be from {MIN_PHANTOM_SIZE} to {MAX_PHANTOM_SIZE} voxels; got {phantom_size}"
+            )
+        check_memory((phantom_size,) * 3, n_bins, input_bytes=2 * phantom_size**3)  # int16 voxels
         phantom = head_phantom(phantom_size, seed=seed)
         dims = np.asarray(phantom.values.shape[::-1], dtype=float)
         origin = -0.5 * (dims - 1.0) * np.asarray(phantom.spacing)
         return Volume(phantom.values, phantom.spacing, tuple(origin), np.eye(3), PHANTOM_INPUT)
-    return read_volume(source)
+    return read_volume(source, n_bins=n_bins)
 
 
 def input_info(source: PathLike, volume: Volume) -> dict:
@@ -55,4 +69,3 @@ def input_info(source: PathLike, volume: Volume) -> dict:
         "value_min": float(np.min(values)) if values.size else None,
         "value_max": float(np.max(values)) if values.size else None,
     }
-

@@ -8,25 +8,22 @@ by Slicer's own volume rendering, headless), ``classes.png`` (one small render p
 """
 
 import json
-import os
-import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Optional, Union
+from typing import Optional
 
 import numpy as np
 
 from IsoSimilarityTFLib.classes import IsovalueClass
 from IsoSimilarityTFLib.design import TransferFunctionDesign
-from IsoSimilarityTFLib.errors import OutputError, RenderError, UsageError
+from IsoSimilarityTFLib.errors import OutputError, RenderError
 from IsoSimilarityTFLib.pictures import similarity_image
 
 from .console import ProgressPrinter
 from .figures import class_grid, class_label_lines
 from .formatting import value_decimals
+from .output_folder import save_scene
 from .volume_io import Volume
-
-PathLike = Union[str, "os.PathLike[str]"]
 
 #: Output file names, by role.
 OUTPUT_FILES = {
@@ -40,13 +37,14 @@ OUTPUT_FILES = {
     "scene": "scene/scene.mrml",
     "segmentation": "classes.seg.nrrd",
 }
-SCENE_FOLDER = "scene"
 
 DEFAULT_VIEW = "anterior"
 DEFAULT_SIZE = 512
 DEFAULT_BACKDROP = "black"
 DEFAULT_RAY_CASTING = "cpu"
 MIN_SIZE = 32
+#: Largest render.png side: bigger off-screen windows fail inside the OpenGL driver (a crash, not an error).
+MAX_SIZE = 4096
 
 
 @dataclass
@@ -59,6 +57,7 @@ class RunResult:
         info: the ``input`` entry of ``classes.json``.
         outdir: the output folder (absolute).
         files: output role -> path of each file written (see :data:`OUTPUT_FILES`).
+        scene_files: every file of the saved Slicer scene (scene.mrml and its data files).
         timings_s: seconds per stage: load, quantize, similarity, clustering, classes, write, render, total.
         warnings: warning lines given during the run.
     """
@@ -68,6 +67,7 @@ class RunResult:
     info: dict
     outdir: Path
     files: dict[str, Path] = field(default_factory=dict)
+    scene_files: list[Path] = field(default_factory=list)
     timings_s: dict[str, float] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
 
@@ -80,24 +80,14 @@ class RunResult:
         document["input"] = self.info
         document["tool"] = {"name": "isosimtf", "version": __version__}
         document["outputs"] = {role: path.relative_to(self.outdir).as_posix() for role, path in self.files.items()}
+        # Every file this run wrote: the next run into this folder removes those it does not write again.
+        document["written"] = sorted({p.relative_to(self.outdir).as_posix() for p in self.written()})
         return document
 
+    def written(self) -> list[Path]:
+        """Every file this run wrote into the output folder."""
+        return [*self.files.values(), *self.scene_files]
 
-
-def prepare_output_folder(outdir: PathLike) -> Path:
-    """Create the output folder (and its parents) if needed; return it absolute.
-
-    Raises:
-        UsageError: the path exists and is not a folder. OutputError: it cannot be created.
-    """
-    path = Path(outdir).expanduser().resolve()
-    if path.exists() and not path.is_dir():
-        raise UsageError(f"the output path '{outdir}' exists and is not a folder")
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        raise OutputError(f"cannot create the output folder '{outdir}': {error.strerror or error}") from None
-    return path
 
 
 def write_data_files(result: RunResult) -> None:
@@ -201,13 +191,8 @@ def render_outputs(
 
         if progress is not None:
             progress.update("scene")
-        scene_dir = outdir / SCENE_FOLDER
-        if scene_dir.exists():
-            shutil.rmtree(scene_dir)
-        scene_dir.mkdir(parents=True)
-        if not headless.scene.SaveSceneToSlicerDataBundleDirectory(str(scene_dir)):
-            raise RenderError(f"Slicer could not save the scene into '{scene_dir}'")
-        result.files["scene"] = scene_dir / f"{scene_dir.name}.mrml"
+        result.scene_files = save_scene(headless.scene, outdir)
+        result.files["scene"] = outdir / OUTPUT_FILES["scene"]
 
 
 def write_segmentation(result: RunResult, headless, volume_node) -> None:

@@ -10,7 +10,7 @@ from typing import Callable, Optional, Union
 import numpy as np
 
 from .classes import IsovalueClass, build_classes, runs
-from .clustering import FALLBACK_DAMPINGS, cluster_isovalues
+from .clustering import FALLBACK_DAMPINGS, cluster_isovalues, unconverged_advice
 from .errors import ClusteringError
 from .look import class_mean_values, default_look, detect_kind
 from .memory import check_memory
@@ -498,7 +498,7 @@ def design_transfer_function(
         if not clusters.converged and opts["unconverged"] != "keep":
             raise ClusteringError(
                 f"affinity propagation did not converge in {opts['max_iter']} iterations with damping "
-                f"{', '.join(f'{d:g}' for d in dampings)}; raise max_iter (e.g. 1000) or damping (e.g. 0.95)"
+                f"{', '.join(f'{d:g}' for d in dampings)}; {unconverged_advice(opts['max_iter'], dampings)}"
             )
 
     with stage("classes", "ranking classes"):

@@ -21,7 +21,17 @@ _OVERHEAD_BYTES = 256 << 20
 
 
 def available_memory_bytes() -> Optional[int]:
-    """Memory available to a new allocation without swapping, in bytes; None where the system does not say."""
+    """Memory available to a new allocation, in bytes; None where the system does not say.
+
+    The smallest of: the system's available memory, what the process's address-space limit (``ulimit -v``) leaves,
+    and what its container's memory limit (cgroup v2 ``memory.max``) leaves. Any of them refuses an allocation.
+    """
+    limits = [_system_available(), _address_space_left(), _cgroup_left()]
+    known = [n for n in limits if n is not None]
+    return max(0, min(known)) if known else None
+
+
+def _system_available() -> Optional[int]:
     try:
         with open("/proc/meminfo", encoding="ascii") as meminfo:
             for line in meminfo:
@@ -32,6 +42,32 @@ def available_memory_bytes() -> Optional[int]:
     try:
         return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
     except (AttributeError, OSError, ValueError):
+        return None
+
+
+def _address_space_left() -> Optional[int]:
+    try:
+        import resource
+
+        limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+        if limit == resource.RLIM_INFINITY:
+            return None
+        with open("/proc/self/statm", encoding="ascii") as statm:
+            used = int(statm.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+        return limit - used
+    except (ImportError, OSError, ValueError, AttributeError):
+        return None
+
+
+def _cgroup_left() -> Optional[int]:
+    try:
+        with open("/sys/fs/cgroup/memory.max", encoding="ascii") as handle:
+            text = handle.read().strip()
+        if text == "max":
+            return None
+        with open("/sys/fs/cgroup/memory.current", encoding="ascii") as handle:
+            return int(text) - int(handle.read().strip())
+    except (OSError, ValueError):
         return None
 
 
@@ -47,18 +83,21 @@ def design_memory_bytes(shape: tuple, n_bins: int) -> int:
     return int(voxels * index_bytes * _BYTES_PER_VOXEL + _MATRICES * 8 * n_bins * n_bins + _OVERHEAD_BYTES)
 
 
-def check_memory(shape: tuple, n_bins: int) -> None:
+def check_memory(shape: tuple, n_bins: Optional[int], *, input_bytes: int = 0) -> None:
     """Raise :class:`InsufficientMemoryError` when the design would need more memory than is available.
 
-    A bad ``n_bins`` is let through: the step that uses it says what is wrong with it.
+    Args:
+        shape: the volume's shape.
+        n_bins: the number of bins; None (or a bad value, which the step that uses it reports) counts the input only.
+        input_bytes: bytes still to be allocated for the volume itself (a reader checking a header before reading).
     """
-    if isinstance(n_bins, bool) or not isinstance(n_bins, int) or not 2 <= n_bins <= MAX_BINS:
-        return
+    valid_bins = not isinstance(n_bins, bool) and isinstance(n_bins, int) and 2 <= n_bins <= MAX_BINS
     available = available_memory_bytes()
-    needed = design_memory_bytes(shape, n_bins)
+    needed = int(input_bytes) + (design_memory_bytes(shape, n_bins) if valid_bins else 0)  # type: ignore[arg-type]
     if available is not None and needed > available:
         dims = " x ".join(str(int(n)) for n in shape)
+        bins = f" with {n_bins} bins" if valid_bins else ""
         raise InsufficientMemoryError(
-            f"a volume of {dims} voxels with {n_bins} bins needs about {needed / 2**30:.1f} GB of memory and "
+            f"a volume of {dims} voxels{bins} needs about {needed / 2**30:.1f} GB of memory and "
             f"{available / 2**30:.1f} GB are available: crop or downsample the volume, or use fewer bins"
         )

@@ -79,7 +79,16 @@ def _chunked_bincount(flat: np.ndarray, length: int) -> np.ndarray:
 
 
 def validate_volume(values: np.ndarray) -> np.ndarray:
-    """Return ``values`` as an array if it is a 3-D real scalar volume, else raise ``ValueError`` saying why."""
+    """Return ``values`` as an array if it is a 3-D real scalar volume, else raise ``ValueError`` saying why.
+
+    A masked array is refused rather than silently unmasked: the method works on whole 2x2x2 cells, and what a cell
+    with masked corners means is the caller's choice (fill them, e.g. ``values.filled(values.min())``, or crop).
+    """
+    if isinstance(values, np.ma.MaskedArray):
+        raise ValueError(
+            "masked arrays are not supported (the mask would be ignored): fill the masked voxels, e.g. "
+            "values.filled(values.min()), or crop the volume"
+        )
     values = np.asarray(values)
     numeric = np.issubdtype(values.dtype, np.integer) or np.issubdtype(values.dtype, np.floating)
     if values.dtype == bool or not numeric:
@@ -98,13 +107,23 @@ def validate_volume(values: np.ndarray) -> np.ndarray:
     return values
 
 
-def _finite_range(values: np.ndarray) -> tuple[float, float]:
+def _finite_range(values: np.ndarray, n_bins: int) -> tuple[float, float]:
     if np.issubdtype(values.dtype, np.floating):
         finite = np.isfinite(values)
         if not finite.all():
             n_bad = int(values.size - np.count_nonzero(finite))
             raise ValueError(f"the volume has {n_bad} NaN or infinite voxels; replace or mask them first")
-    return float(values.min()), float(values.max())
+        return float(values.min()), float(values.max())
+    low, high = int(values.min()), int(values.max())  # exact, whatever the magnitude
+    step = float(np.spacing(float(max(abs(low), abs(high)))))
+    if high > low and (high - low) / n_bins < step:
+        # Bins (and the transfer function, in float64 volume units) finer than float64 resolves at this magnitude:
+        # e.g. int64 values near 2^62 would all fall in one bin, and the run would "succeed" with one class.
+        raise ValueError(
+            f"the volume's integers span {high - low} around {float(high):.4g}, where float64 steps by {step:g}: "
+            f"too fine for {n_bins} bins; subtract an offset first (e.g. values - values.min())"
+        )
+    return float(low), float(high)
 
 
 def _bin_index(values: np.ndarray, value_range: tuple[float, float], n_bins: int) -> np.ndarray:
@@ -129,15 +148,20 @@ def quantize(values: np.ndarray, n_bins: int = 256, value_range: Optional[tuple[
     if isinstance(n_bins, bool) or not isinstance(n_bins, (int, np.integer)) or not 2 <= n_bins <= MAX_BINS:
         raise ValueError(f"n_bins must be an integer from 2 to {MAX_BINS}; got {n_bins!r}")
     n_bins = int(n_bins)
-    data_range = _finite_range(values)
+    data_range = _finite_range(values, n_bins)
     if value_range is None:
         if data_range[0] == data_range[1]:
             raise ValueError(f"the volume is constant (every voxel is {data_range[0]:g}): there is nothing to classify")
         value_range = data_range
     else:
-        low, high = (float(v) for v in value_range)
-        if not (np.isfinite(low) and np.isfinite(high) and low < high):
-            raise ValueError(f"value_range must be two finite numbers with low < high; got {value_range!r}")
+        from .options import OPTIONS  # the table imports this module for MAX_BINS
+
+        low, high = OPTIONS["value_range"].check(value_range)
+        if high < data_range[0] or low > data_range[1]:
+            raise ValueError(
+                f"value_range [{low:g}, {high:g}] lies outside the volume's values [{data_range[0]:g}, "
+                f"{data_range[1]:g}]: every voxel would fall in one bin"
+            )
         value_range = (low, high)
 
     out_dtype = np.uint8 if n_bins <= 256 else np.uint16

@@ -13,6 +13,8 @@ from typing import Callable, Optional
 import numpy as np
 
 from .cells import OctreeBuilder, Shape3, octree_levels, unit_cell_slabs
+from .memory import check_memory
+from .quantize import MAX_BINS
 
 CROSSINGS = ("inclusive", "strict")
 NORMALIZATIONS = ("thesis", "ma-entezari")
@@ -163,8 +165,9 @@ def _check_bins(bins: np.ndarray, n_bins: int) -> np.ndarray:
         raise ValueError(f"bins must be a 3-D array with at least 2 voxels per axis; got shape {bins.shape}")
     if not np.issubdtype(bins.dtype, np.integer):
         raise ValueError(f"bins must hold integers (use quantize() first); got dtype {bins.dtype}")
-    if isinstance(n_bins, bool) or not isinstance(n_bins, (int, np.integer)) or n_bins < 2:
-        raise ValueError(f"n_bins must be an integer >= 2; got {n_bins!r}")
+    if isinstance(n_bins, bool) or not isinstance(n_bins, (int, np.integer)) or not 2 <= n_bins <= MAX_BINS:
+        raise ValueError(f"n_bins must be an integer from 2 to {MAX_BINS}; got {n_bins!r}")
+    check_memory(bins.shape, int(n_bins))  # a clear error, not numpy's MemoryError (or the OOM killer) mid-way
     # Scan the volume only for the bounds its dtype does not already guarantee (none for uint8 and 256 bins).
     limits = np.iinfo(bins.dtype)
     low = int(bins.min()) if limits.min < 0 else 0
