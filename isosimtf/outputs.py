@@ -202,6 +202,8 @@ def write_segmentation(result: RunResult, headless, volume_node) -> None:
 
     from IsoSimilarityTFLib.mrml import export_segmentation
 
+    from .rendering import captured_vtk_messages
+
     segmentations = slicer.vtkSlicerSegmentationsModuleLogic()  # registers the segmentation converters, as Slicer does
     segmentations.SetMRMLApplicationLogic(headless.app_logic)
     segmentations.SetMRMLScene(headless.scene)
@@ -215,7 +217,9 @@ def write_segmentation(result: RunResult, headless, volume_node) -> None:
             if added is not None:
                 headless.scene.RemoveNode(added)
     finally:
-        segmentations.SetMRMLScene(None)
+        # Detaching the logic makes the subject hierarchy warn "Invalid scene given" on stderr: nothing to report.
+        with captured_vtk_messages():
+            segmentations.SetMRMLScene(None)
     if not written:
         raise RenderError(f"Slicer could not write '{path}'")
     result.files["segmentation"] = path
