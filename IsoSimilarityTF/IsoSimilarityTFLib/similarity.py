@@ -209,7 +209,10 @@ def interval_histograms(
             progress(done / total, "similarity: unit cells")
             reported = done
     if unit_counter is not None:
-        yield unit_level, (1, 1, 1), unit_counter.table
+        table = unit_counter.table
+        unit_counter = None
+        yield unit_level, (1, 1, 1), table
+        del table  # tables are n_bins ** 2 int64 (128 MB at 4096 bins): hold none longer than the consumer does
     done = unit_cells
     for level, size, mins, maxs in builder.levels():
         done += mins.size
@@ -223,6 +226,18 @@ def _batched(items: Iterable, size: int) -> Iterator[list]:
     iterator = iter(items)
     while batch := list(islice(iterator, size)):
         yield batch
+
+
+def _add_levels(total: np.ndarray, overlaps: np.ndarray, denominators: np.ndarray, weights: np.ndarray) -> None:
+    """Add ``weights * overlaps / denominators`` of a stack of levels to ``total``, one level after the other.
+
+    Level by level in the stack's order (finest first), so every sum is rounded the same way whatever the batching.
+    """
+    with np.errstate(invalid="ignore", divide="ignore"):
+        terms = np.divide(overlaps, denominators)
+    terms *= weights
+    for term in terms:
+        total += term
 
 
 def isovalue_similarity(
@@ -258,26 +273,18 @@ def isovalue_similarity(
     cell_counts = np.zeros((levels, n_bins), dtype=np.int64)
     sizes = [None] * levels
     histograms = interval_histograms(bins, n_bins, levels, progress)
-    # Levels go finest first and are added one by one in that order, so every sum is rounded the same way whatever
-    # the batching.
     for batch in _batched(histograms, max(1, _STACKED_ENTRIES // (n_bins * n_bins))):
         overlaps = _upper_overlaps(np.stack([histogram for _, _, histogram in batch]), crossing)
         counts = np.diagonal(overlaps, axis1=1, axis2=2)
-        level_weight = weights[[level - 1 for level, _, _ in batch], np.newaxis, np.newaxis]
+        stacked_weights = weights[[level - 1 for level, _, _ in batch], np.newaxis, np.newaxis]
         if normalization == "thesis":
             # O / max(n_i, n_j); where both are 0, so is O, and 0 / 1 gives the 0 the thesis asks for.
-            denominator = np.maximum(np.maximum(counts[:, :, np.newaxis], counts[:, np.newaxis, :]), 1)
-            terms = [(by_column, level_weight * (overlaps / denominator))]
+            denominator = np.maximum(counts[:, :, np.newaxis], counts[:, np.newaxis, :])
+            _add_levels(by_column, overlaps, np.maximum(denominator, 1, out=denominator), stacked_weights)
         else:
             # A(i, j) = O / n_j: NaN where isovalue j crosses nothing, and NaN stays NaN in the sum.
-            with np.errstate(invalid="ignore", divide="ignore"):
-                terms = [
-                    (by_column, level_weight * (overlaps / counts[:, np.newaxis, :])),
-                    (by_row, level_weight * (overlaps / counts[:, :, np.newaxis])),
-                ]
-        for total, weighted in terms:
-            for level_term in weighted:
-                total += level_term
+            _add_levels(by_column, overlaps, counts[:, np.newaxis, :], stacked_weights)
+            _add_levels(by_row, overlaps, counts[:, :, np.newaxis], stacked_weights)
         for k, (level, size, _) in enumerate(batch):
             cell_counts[level - 1] = counts[k]
             sizes[level - 1] = size
