@@ -9,6 +9,7 @@ from typing import Callable, Optional, Union
 
 import numpy as np
 
+from .chunked import is_dask_array, quantize_chunked
 from .classes import IsovalueClass, build_classes, default_colors, default_opacities
 from .clustering import ClusteringError, cluster_isovalues
 from .memory import check_memory
@@ -248,7 +249,8 @@ def design_transfer_function(
     """Design a transfer function for a volume: quantize, similarity, affinity propagation, classes.
 
     Args:
-        values: 3-D scalar volume (any axis order), or an already quantized volume.
+        values: 3-D scalar volume (any axis order; a ``dask.array`` for volumes larger than memory), or an already
+            quantized volume.
         spacing: voxel spacing in mm, used for the opacity unit distance.
         progress: called as ``progress(stage, fraction, message)``; raising from it cancels the design.
         **options: ``n_bins``, ``value_range``, ``crossing``, ``normalization``, ``levels``, ``preference``,
@@ -283,11 +285,15 @@ def design_transfer_function(
         yield
         timings[name] = time.perf_counter() - start
 
-    check_memory(np.shape(values.bins if isinstance(values, Quantization) else values), opts["n_bins"])
+    chunked = is_dask_array(values)
+    if not chunked:  # a dask volume is never held whole (see .chunked)
+        check_memory(np.shape(values.bins if isinstance(values, Quantization) else values), opts["n_bins"])
     with stage("quantize", "quantizing"):
         if isinstance(values, Quantization):
             quantized = values
             opts["n_bins"], opts["value_range"] = quantized.n_bins, list(quantized.value_range)
+        elif chunked:
+            quantized = quantize_chunked(values, opts["n_bins"], opts["value_range"])
         else:
             quantized = quantize(values, opts["n_bins"], opts["value_range"])
 

@@ -55,6 +55,11 @@ class Quantization:
 
     def voxel_counts(self) -> np.ndarray:
         """Number of voxels per bin, shape ``(n_bins,)`` int64 (the volume's histogram)."""
+        if not isinstance(self.bins, np.ndarray):  # a dask volume: one row of chunks at a time
+            from .chunked import voxel_slabs
+
+            slabs = voxel_slabs(self.bins, halo=0)
+            return sum(Quantization(slab, self.n_bins, self.value_range).voxel_counts() for _, slab in slabs)
         flat = self.bins.reshape(-1)
         if flat.dtype != np.uint8:
             return _chunked_bincount(flat, self.n_bins)

@@ -13,6 +13,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from .cells import OctreeBuilder, Shape3, octree_levels, unit_cell_slabs
+from .chunked import is_dask_array, voxel_slabs
 
 CROSSINGS = ("inclusive", "strict")
 NORMALIZATIONS = ("thesis", "ma-entezari")
@@ -158,7 +159,8 @@ def level_weights(n_levels: int) -> np.ndarray:
 
 
 def _check_bins(bins: np.ndarray, n_bins: int) -> np.ndarray:
-    bins = np.asarray(bins)
+    if not is_dask_array(bins):
+        bins = np.asarray(bins)
     if bins.ndim != 3 or min(bins.shape) < 2:
         raise ValueError(f"bins must be a 3-D array with at least 2 voxels per axis; got shape {bins.shape}")
     if not np.issubdtype(bins.dtype, np.integer):
@@ -180,11 +182,12 @@ def interval_histograms(
     """Joint (min, max) histogram of the hyper-cells of each of the ``levels`` coarsest octree levels.
 
     One pass over the volume in slabs: each slab's unit cells are counted while in cache and folded into the coarser
-    levels; no array of the volume's size is made. Memory: the second finest level (a quarter of a byte per voxel
-    for uint8 bins) and the coarser ones, plus ``n_bins ** 2`` int64 per table.
+    levels; no array of the volume's size is made, and a dask volume is read one row of chunks at a time. Memory:
+    the second finest level (a quarter of a byte per voxel for uint8 bins) and the coarser ones, plus
+    ``n_bins ** 2`` int64 per table.
 
     Args:
-        bins: 3-D uint8 or uint16 array, values in ``[0, n_bins)``.
+        bins: 3-D uint8 or uint16 array (numpy or dask), values in ``[0, n_bins)``.
         levels: how many of the coarsest levels to count.
         progress: called as ``progress(fraction, message)`` at least every ``_PROGRESS_CELLS`` unit cells and after
             each level; raising from it aborts.
@@ -200,14 +203,16 @@ def interval_histograms(
     total = unit_cells + builder.n_cells
     unit_counter = PairCounter(n_bins) if levels == unit_level else None
     reported = 0
-    for first, mins, maxs in unit_cell_slabs(bins, _SLAB_CELLS // (grid[1] * grid[2])):
-        if unit_counter is not None:
-            unit_counter.add(mins, maxs)
-        builder.add_slab(first, mins, maxs)
-        done = (first + len(mins)) * grid[1] * grid[2]
-        if progress is not None and done - reported >= _PROGRESS_CELLS:
-            progress(done / total, "similarity: unit cells")
-            reported = done
+    for start, voxels in voxel_slabs(bins) if is_dask_array(bins) else [(0, bins)]:
+        for first, mins, maxs in unit_cell_slabs(voxels, _SLAB_CELLS // (grid[1] * grid[2])):
+            first += start
+            if unit_counter is not None:
+                unit_counter.add(mins, maxs)
+            builder.add_slab(first, mins, maxs)
+            done = (first + len(mins)) * grid[1] * grid[2]
+            if progress is not None and done - reported >= _PROGRESS_CELLS:
+                progress(done / total, "similarity: unit cells")
+                reported = done
     if unit_counter is not None:
         table = unit_counter.table
         unit_counter = None
@@ -308,7 +313,8 @@ def similarity_matrix(
     """Similarity of every pair of isovalues (thesis eq. 3.1 and 3.2).
 
     Args:
-        bins: 3-D integer array (a quantized volume), values in ``[0, n_bins)``, at least 2 voxels per axis.
+        bins: 3-D integer array (a quantized volume, numpy or dask), values in ``[0, n_bins)``, at least 2 voxels per
+            axis.
         n_bins: number of isovalues.
         crossing: ``"inclusive"`` (isovalue crosses a cell when ``min <= mu <= max``, thesis) or ``"strict"``
             (``min < mu < max``, Ma & Entezari's code).
