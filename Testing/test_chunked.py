@@ -6,7 +6,7 @@ import dask.array as da
 import numpy as np
 import pytest
 
-from IsoSimilarityTFLib import design_transfer_function, isovalue_similarity, quantize
+from IsoSimilarityTFLib import InsufficientMemoryError, design_transfer_function, isovalue_similarity, memory, quantize
 from IsoSimilarityTFLib.chunked import is_dask_array, quantize_chunked
 
 RULES = list(itertools.product(("inclusive", "strict"), ("thesis", "ma-entezari")))
@@ -78,3 +78,25 @@ def test_bad_dask_volumes_are_refused_like_arrays():
         design_transfer_function(da.zeros((4, 4), chunks=2))
     with pytest.raises(ValueError, match="n_bins"):
         design_transfer_function(da.from_array(blob_volume(), chunks=8), n_bins=1)
+
+
+def test_a_dask_volume_needs_memory_for_the_octree_levels_only(monkeypatch):
+    """Streamed, a volume needs a third of a byte per voxel (the levels above the unit cells), not the bins' byte."""
+    shape = (2048, 2048, 3200)
+    in_memory, streamed = memory.design_memory_bytes(shape, 256), memory.design_memory_bytes(shape, 256, True)
+    voxels = 2048 * 2048 * 3200
+    assert in_memory - streamed == voxels and 0.3 < (streamed - (256 << 20)) / voxels < 0.4
+    volume = da.zeros(shape, dtype=np.uint16, chunks=(64, 2048, 2048))
+    monkeypatch.setattr(memory, "available_memory_bytes", lambda: (in_memory + streamed) // 2)
+
+    class Started(Exception):
+        pass
+
+    def stop_at_start(stage, fraction, message):
+        raise Started
+
+    with pytest.raises(Started):  # past the memory check: enough for the streamed design
+        design_transfer_function(volume, progress=stop_at_start)
+    monkeypatch.setattr(memory, "available_memory_bytes", lambda: streamed - 1)
+    with pytest.raises(InsufficientMemoryError, match="crop or downsample"):
+        design_transfer_function(volume, progress=stop_at_start)

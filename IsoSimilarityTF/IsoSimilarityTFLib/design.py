@@ -286,8 +286,7 @@ def design_transfer_function(
         timings[name] = time.perf_counter() - start
 
     chunked = is_dask_array(values)
-    if not chunked:  # a dask volume is never held whole (see .chunked)
-        check_memory(np.shape(values.bins if isinstance(values, Quantization) else values), opts["n_bins"])
+    check_memory(np.shape(values.bins if isinstance(values, Quantization) else values), opts["n_bins"], chunked)
     with stage("quantize", "quantizing"):
         if isinstance(values, Quantization):
             quantized = values

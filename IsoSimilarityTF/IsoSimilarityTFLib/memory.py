@@ -9,10 +9,12 @@ from typing import Optional
 
 from .quantize import MAX_BINS
 
-# Bytes per voxel at the peak of the similarity stage, per byte of bin index: the quantized volume, the hyper-cell
-# minima and maxima of the second finest octree level (1/8 of the voxels; the unit cells are never held whole) and of
-# the coarser levels reduced from it (1/7 of that), and of a level nested in no finer one (at most 1/27).
-_BYTES_PER_VOXEL = 1 + 2 / 8 * (1 + 1 / 7) + 2 / 27
+# Bytes per voxel at the peak of the similarity stage, per byte of bin index: the quantized volume (not held for a
+# volume streamed from a dask array), and the hyper-cell minima and maxima of the second finest octree level (1/8 of
+# the voxels; the unit cells are never held whole), of the coarser levels reduced from it (1/7 of that) and of a level
+# nested in no finer one (at most 1/27).
+_BINS_BYTES_PER_VOXEL = 1
+_LEVELS_BYTES_PER_VOXEL = 2 / 8 * (1 + 1 / 7) + 2 / 27
 # Float64 matrices of n_bins x n_bins alive at once while aggregating the levels.
 _MATRICES = 6
 # Slabs, chunks and libraries.
@@ -38,27 +40,30 @@ def available_memory_bytes() -> Optional[int]:
         return None
 
 
-def design_memory_bytes(shape: tuple, n_bins: int) -> int:
+def design_memory_bytes(shape: tuple, n_bins: int, streamed: bool = False) -> int:
     """Estimated peak memory of designing a transfer function, in bytes, for a volume of ``shape`` voxels.
 
-    Counts what the pipeline allocates beyond the input volume itself.
+    Counts what the pipeline allocates beyond the input volume itself. ``streamed``: the volume is a dask array, read
+    one row of chunks at a time, whose bins are never held whole.
     """
     voxels = 1
     for n in shape:
         voxels *= int(n)
     index_bytes = 1 if n_bins <= 256 else 2
-    return int(voxels * index_bytes * _BYTES_PER_VOXEL + _MATRICES * 8 * n_bins * n_bins + _OVERHEAD_BYTES)
+    per_voxel = _LEVELS_BYTES_PER_VOXEL + (0 if streamed else _BINS_BYTES_PER_VOXEL)
+    return int(voxels * index_bytes * per_voxel + _MATRICES * 8 * n_bins * n_bins + _OVERHEAD_BYTES)
 
 
-def check_memory(shape: tuple, n_bins: int) -> None:
+def check_memory(shape: tuple, n_bins: int, streamed: bool = False) -> None:
     """Raise :class:`InsufficientMemoryError` when the design would need more memory than is available.
 
-    A bad ``n_bins`` is let through: the step that uses it says what is wrong with it.
+    A bad ``n_bins`` is let through: the step that uses it says what is wrong with it. ``streamed``: see
+    :func:`design_memory_bytes`.
     """
     if isinstance(n_bins, bool) or not isinstance(n_bins, int) or not 2 <= n_bins <= MAX_BINS:
         return
     available = available_memory_bytes()
-    needed = design_memory_bytes(shape, n_bins)
+    needed = design_memory_bytes(shape, n_bins, streamed)
     if available is not None and needed > available:
         dims = " x ".join(str(int(n)) for n in shape)
         raise InsufficientMemoryError(
