@@ -61,6 +61,7 @@ TARGET_PEAK_512_INT16_MB = 1.5 * 1024
 # Targets of issue 12: the similarity within this multiple of the numpy floor; the 512^3 int16 design's process peak.
 TARGET_FLOOR_MULTIPLE = 2.2
 TARGET_PEAK_512_INT16_ISSUE12_MB = 700.0
+TARGET_PEAK_1024_OUT_OF_CORE_MB = 1024.0
 # Cells per chunk tried for the floor; the fastest on this machine is the floor.
 FLOOR_CHUNK_CELLS = (1 << 17, 1 << 18, 1 << 19)
 
@@ -147,6 +148,8 @@ def _load_volume(cfg: dict) -> tuple[Any, tuple[float, float, float]]:
     if source == "noise-uint8":
         size = cfg["size"]
         return np.random.default_rng(0).integers(0, 256, (size, size, size), dtype=np.uint8), (1.0, 1.0, 1.0)
+    if source == "phantom-dask":
+        return _dask_phantom(cfg["size"]), (1.0, 1.0, 1.0)
     if source in ("head-ct", "brain-mri"):
         from isosimtf.volume_io import read_volume, real_dataset_path
 
@@ -156,6 +159,34 @@ def _load_volume(cfg: dict) -> tuple[Any, tuple[float, float, float]]:
         volume = read_volume(path)
         return volume.values, volume.spacing
     raise ValueError(f"unknown source {source!r}")
+
+
+def _dask_phantom(size: int) -> Any:
+    """A volume larger than it needs to be in memory: the 512^3 int16 phantom in a raw file (written once to the temp
+    folder), read lazily by dask in 32-plane chunks and tiled ``size // 512`` times along every axis."""
+    import tempfile
+
+    import dask
+    import dask.array as da
+    import numpy as np
+
+    from isosimtf.phantom import head_phantom
+
+    path = Path(tempfile.gettempdir()) / "isosimtf-bench-phantom-512-int16.raw"
+    if not path.exists():
+        head_phantom(512, seed=0).values.astype("<i2").tofile(path)
+    planes, plane_shape = 32, (512, 512)
+
+    def read(first: int) -> Any:
+        with open(path, "rb") as raw:
+            raw.seek(first * 512 * 512 * 2)
+            return np.fromfile(raw, dtype="<i2", count=planes * 512 * 512).reshape(planes, *plane_shape)
+
+    chunks = [
+        da.from_delayed(dask.delayed(read)(first), (planes, *plane_shape), "<i2") for first in range(0, 512, planes)
+    ]
+    tile, tiles = da.concatenate(chunks), size // 512
+    return da.block([[[tile] * tiles] * tiles] * tiles)
 
 
 # ----------------------------------------------------------------------------------------------------- child side
@@ -591,7 +622,27 @@ def configurations(quick: bool) -> dict[str, list[dict]]:
     if quick:
         for cfg in floor:
             cfg["repeats"] = 5
-    return {"floor": floor, "sizes": sizes, "real": real, "targets": targets, "bins": bins, "reference": reference}
+    out_of_core = [
+        {
+            "kind": "pipeline",
+            "name": "out of core: 1024^3 int16 dask (raw file)",
+            "source": "phantom-dask",
+            "size": 1024,
+            "repeats": 1,
+            "render": False,
+            "repeat_load": False,
+            "options": {"unconverged": "keep"},
+        }
+    ]
+    return {
+        "floor": floor,
+        "out_of_core": out_of_core,
+        "sizes": sizes,
+        "real": real,
+        "targets": targets,
+        "bins": bins,
+        "reference": reference,
+    }
 
 
 # ----------------------------------------------------------------------------------------------------- reporting
@@ -733,6 +784,17 @@ def build_report(machine: dict, groups: dict[str, list[dict]], quick: bool, wall
                 f"<= {TARGET_PEAK_512_INT16_ISSUE12_MB:.0f} MB",
                 f"{peak:.0f} MB (pipeline's own increase {big['pipeline_peak_increase_mb']:.0f} MB)",
                 "PASS" if peak <= TARGET_PEAK_512_INT16_ISSUE12_MB else "FAIL",
+            ]
+        )
+    out_of_core = _by_name(everything, "out of core: 1024^3 int16 dask (raw file)")
+    if out_of_core and "error" not in out_of_core:
+        peak = out_of_core["process_peak_mb"]
+        verdicts12.append(
+            [
+                "1024^3 int16 (2 GB) designed out of core (dask over a raw file), process peak RSS",
+                f"<= {TARGET_PEAK_1024_OUT_OF_CORE_MB:.0f} MB",
+                f"{peak:.0f} MB in {_fmt_s(out_of_core['median_s']['pipeline'])}",
+                "PASS" if peak <= TARGET_PEAK_1024_OUT_OF_CORE_MB else "FAIL",
             ]
         )
     summary["floor"] = floor_summary

@@ -100,7 +100,7 @@ def background_contact(bins: np.ndarray, labels: np.ndarray, background_id: int)
     """Share of each class's voxels that have a background voxel among their 6 neighbours.
 
     Args:
-        bins: quantized volume, shape ``(n0, n1, n2)``.
+        bins: quantized volume, shape ``(n0, n1, n2)`` (numpy, or dask: only the planes measured are read).
         labels: ``(n_bins,)`` class id per bin.
         background_id: the background class.
 
@@ -119,7 +119,7 @@ def background_contact(bins: np.ndarray, labels: np.ndarray, background_id: int)
     for plane in range(0, bins.shape[0], step):
         window = range(max(plane - 1, 0), min(plane + 2, bins.shape[0]))
         looked_up = {
-            k: looked_up[k] if k in looked_up else _plane_classes(twice_class_of_bin, bins[k], background)
+            k: looked_up[k] if k in looked_up else _plane_classes(twice_class_of_bin, np.asarray(bins[k]), background)
             for k in window
         }
         classes, in_plane = looked_up[plane]

@@ -9,6 +9,7 @@ from typing import Callable, Optional, Union
 
 import numpy as np
 
+from .chunked import is_dask_array, quantize_chunked
 from .classes import IsovalueClass, build_classes, runs
 from .clustering import FALLBACK_DAMPINGS, cluster_isovalues, unconverged_advice
 from .errors import ClusteringError
@@ -422,7 +423,8 @@ def design_transfer_function(
     """Design a transfer function for a volume: quantize, similarity, affinity propagation, classes.
 
     Args:
-        values: 3-D scalar volume (any axis order), or an already quantized volume.
+        values: 3-D scalar volume (any axis order; a ``dask.array`` for volumes larger than memory), or an already
+            quantized volume.
         spacing: voxel spacing in mm, used for the opacity unit distance.
         progress: called as ``progress(stage, fraction, message)``; raising from it cancels the design.
         **options: ``n_bins``, ``value_range``, ``crossing``, ``normalization``, ``levels``, ``preference``,
@@ -458,11 +460,15 @@ def design_transfer_function(
         yield
         timings[name] = time.perf_counter() - start
 
-    check_memory(np.shape(values.bins if isinstance(values, Quantization) else values), opts["n_bins"])
+    chunked = is_dask_array(values)
+    shape = np.shape(values.bins if isinstance(values, Quantization) else values)
+    check_memory(shape, opts["n_bins"], streamed=chunked)
     with stage("quantize", "quantizing"):
         if isinstance(values, Quantization):
             quantized = values
             opts["n_bins"], opts["value_range"] = quantized.n_bins, list(quantized.value_range)
+        elif chunked:
+            quantized = quantize_chunked(values, opts["n_bins"], opts["value_range"])
         else:
             quantized = quantize(values, opts["n_bins"], opts["value_range"])
 

@@ -10,10 +10,12 @@ from typing import Optional
 from .errors import InsufficientMemoryError
 from .quantize import MAX_BINS
 
-# Bytes per voxel at the peak of the similarity stage, per byte of bin index: the quantized volume, the hyper-cell
-# minima and maxima of the second finest octree level (1/8 of the voxels; the unit cells are never held whole) and of
-# the coarser levels reduced from it (1/7 of that), and of a level nested in no finer one (at most 1/27).
-_BYTES_PER_VOXEL = 1 + 2 / 8 * (1 + 1 / 7) + 2 / 27
+# Bytes per voxel at the peak of the similarity stage, per byte of bin index: the quantized volume (not held for a
+# volume streamed from a dask array), and the hyper-cell minima and maxima of the second finest octree level (1/8 of
+# the voxels; the unit cells are never held whole), of the coarser levels reduced from it (1/7 of that) and of a level
+# nested in no finer one (at most 1/27).
+_BINS_BYTES_PER_VOXEL = 1
+_LEVELS_BYTES_PER_VOXEL = 2 / 8 * (1 + 1 / 7) + 2 / 27
 # Float64 matrices of n_bins x n_bins alive at once while aggregating the levels.
 _MATRICES = 6
 # Slabs, chunks and libraries.
@@ -71,29 +73,32 @@ def _cgroup_left() -> Optional[int]:
         return None
 
 
-def design_memory_bytes(shape: tuple, n_bins: int) -> int:
+def design_memory_bytes(shape: tuple, n_bins: int, streamed: bool = False) -> int:
     """Estimated peak memory of designing a transfer function, in bytes, for a volume of ``shape`` voxels.
 
-    Counts what the pipeline allocates beyond the input volume itself.
+    Counts what the pipeline allocates beyond the input volume itself. ``streamed``: the volume is a dask array, read
+    one row of chunks at a time, whose bins are never held whole.
     """
     voxels = 1
     for n in shape:
         voxels *= int(n)
     index_bytes = 1 if n_bins <= 256 else 2
-    return int(voxels * index_bytes * _BYTES_PER_VOXEL + _MATRICES * 8 * n_bins * n_bins + _OVERHEAD_BYTES)
+    per_voxel = _LEVELS_BYTES_PER_VOXEL + (0 if streamed else _BINS_BYTES_PER_VOXEL)
+    return int(voxels * index_bytes * per_voxel + _MATRICES * 8 * n_bins * n_bins + _OVERHEAD_BYTES)
 
 
-def check_memory(shape: tuple, n_bins: Optional[int], *, input_bytes: int = 0) -> None:
+def check_memory(shape: tuple, n_bins: Optional[int], *, input_bytes: int = 0, streamed: bool = False) -> None:
     """Raise :class:`InsufficientMemoryError` when the design would need more memory than is available.
 
     Args:
         shape: the volume's shape.
         n_bins: the number of bins; None (or a bad value, which the step that uses it reports) counts the input only.
         input_bytes: bytes still to be allocated for the volume itself (a reader checking a header before reading).
+        streamed: the volume is a dask array designed slab by slab (see :func:`design_memory_bytes`).
     """
     valid_bins = not isinstance(n_bins, bool) and isinstance(n_bins, int) and 2 <= n_bins <= MAX_BINS
     available = available_memory_bytes()
-    needed = int(input_bytes) + (design_memory_bytes(shape, n_bins) if valid_bins else 0)  # type: ignore[arg-type]
+    needed = int(input_bytes) + (design_memory_bytes(shape, n_bins, streamed) if valid_bins else 0)  # type: ignore[arg-type]
     if available is not None and needed > available:
         dims = " x ".join(str(int(n)) for n in shape)
         bins = f" with {n_bins} bins" if valid_bins else ""

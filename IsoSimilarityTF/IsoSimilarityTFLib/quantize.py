@@ -55,6 +55,11 @@ class Quantization:
 
     def voxel_counts(self) -> np.ndarray:
         """Number of voxels per bin, shape ``(n_bins,)`` int64 (the volume's histogram)."""
+        if not isinstance(self.bins, np.ndarray):  # a dask volume: one row of chunks at a time
+            from .chunked import voxel_slabs
+
+            slabs = voxel_slabs(self.bins, halo=0)
+            return sum(Quantization(slab, self.n_bins, self.value_range).voxel_counts() for _, slab in slabs)
         flat = self.bins.reshape(-1)
         if flat.dtype != np.uint8:
             return _chunked_bincount(flat, self.n_bins)
@@ -126,6 +131,24 @@ def _finite_range(values: np.ndarray, n_bins: int) -> tuple[float, float]:
     return float(low), float(high)
 
 
+def bins_dtype(n_bins: int) -> np.dtype:
+    """The integer type of the bins: uint8 up to 256 bins, else uint16."""
+    return np.dtype(np.uint8 if n_bins <= 256 else np.uint16)
+
+
+def checked_value_range(value_range, data_range: tuple[float, float]) -> tuple[float, float]:
+    """A given ``value_range`` as ``(low, high)``, refused when it misses the volume's ``data_range`` altogether."""
+    from .options import OPTIONS  # the table imports this module for MAX_BINS
+
+    low, high = OPTIONS["value_range"].check(value_range)
+    if high < data_range[0] or low > data_range[1]:
+        raise ValueError(
+            f"value_range [{low:g}, {high:g}] lies outside the volume's values [{data_range[0]:g}, "
+            f"{data_range[1]:g}]: every voxel would fall in one bin"
+        )
+    return low, high
+
+
 def _bin_index(values: np.ndarray, value_range: tuple[float, float], n_bins: int) -> np.ndarray:
     low, high = value_range
     scaled = (values - low) * (n_bins / (high - low))
@@ -154,19 +177,34 @@ def quantize(values: np.ndarray, n_bins: int = 256, value_range: Optional[tuple[
             raise ValueError(f"the volume is constant (every voxel is {data_range[0]:g}): there is nothing to classify")
         value_range = data_range
     else:
-        from .options import OPTIONS  # the table imports this module for MAX_BINS
+        value_range = checked_value_range(value_range, data_range)
 
-        low, high = OPTIONS["value_range"].check(value_range)
-        if high < data_range[0] or low > data_range[1]:
-            raise ValueError(
-                f"value_range [{low:g}, {high:g}] lies outside the volume's values [{data_range[0]:g}, "
-                f"{data_range[1]:g}]: every voxel would fall in one bin"
-            )
-        value_range = (low, high)
+    bins = bin_volume(values, n_bins, value_range, data_range)
+    return Quantization(bins=bins, n_bins=n_bins, value_range=value_range)
 
-    out_dtype = np.uint8 if n_bins <= 256 else np.uint16
+
+def bin_volume(
+    values: np.ndarray,
+    n_bins: int,
+    value_range: tuple[float, float],
+    data_range: Optional[tuple[float, float]] = None,
+) -> np.ndarray:
+    """The isovalue bin of every voxel, unchecked: :func:`quantize` (or a chunk of a volume it checked) calls it.
+
+    Args:
+        values: 3-D array of integers or floats.
+        n_bins: number of bins (2 to ``MAX_BINS``).
+        value_range: ``(low, high)`` in volume units; values outside fall in the first or last bin.
+        data_range: ``values``' own minimum and maximum, when already known.
+
+    Returns:
+        Bins, same shape as ``values``: uint8 up to 256 bins, else uint16.
+    """
+    out_dtype = bins_dtype(n_bins)
     bins = np.empty(values.shape, dtype=out_dtype)
     flat_in, flat_out = values.reshape(-1), bins.reshape(-1)
+    if data_range is None:
+        data_range = (float(values.min()), float(values.max()))
     span = data_range[1] - data_range[0]
     if np.issubdtype(values.dtype, np.integer) and values.dtype.itemsize <= 2:
         # Exact and fast: every possible 8/16-bit pattern is binned once, then looked up by the raw bits.
@@ -188,4 +226,4 @@ def quantize(values: np.ndarray, n_bins: int = 256, value_range: Optional[tuple[
         for start in range(0, flat_in.size, _SLAB_VOXELS):
             chunk = flat_in[start : start + _SLAB_VOXELS].astype(np.float64)
             flat_out[start : start + _SLAB_VOXELS] = _bin_index(chunk, value_range, n_bins)
-    return Quantization(bins=bins, n_bins=n_bins, value_range=value_range)
+    return bins

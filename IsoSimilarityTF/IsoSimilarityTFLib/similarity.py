@@ -13,6 +13,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from .cells import OctreeBuilder, Shape3, octree_levels, unit_cell_slabs
+from .chunked import is_dask_array, voxel_slabs
 from .memory import check_memory
 from .quantize import MAX_BINS
 
@@ -160,7 +161,8 @@ def level_weights(n_levels: int) -> np.ndarray:
 
 
 def _check_bins(bins: np.ndarray, n_bins: int) -> np.ndarray:
-    bins = np.asarray(bins)
+    if not is_dask_array(bins):
+        bins = np.asarray(bins)
     if bins.ndim != 3 or min(bins.shape) < 2:
         raise ValueError(f"bins must be a 3-D array with at least 2 voxels per axis; got shape {bins.shape}")
     if not np.issubdtype(bins.dtype, np.integer):
@@ -183,11 +185,12 @@ def interval_histograms(
     """Joint (min, max) histogram of the hyper-cells of each of the ``levels`` coarsest octree levels.
 
     One pass over the volume in slabs: each slab's unit cells are counted while in cache and folded into the coarser
-    levels; no array of the volume's size is made. Memory: the second finest level (a quarter of a byte per voxel
-    for uint8 bins) and the coarser ones, plus ``n_bins ** 2`` int64 per table.
+    levels; no array of the volume's size is made, and a dask volume is read one row of chunks at a time. Memory:
+    the second finest level (a quarter of a byte per voxel for uint8 bins) and the coarser ones, plus
+    ``n_bins ** 2`` int64 per table.
 
     Args:
-        bins: 3-D uint8 or uint16 array, values in ``[0, n_bins)``.
+        bins: 3-D uint8 or uint16 array (numpy or dask), values in ``[0, n_bins)``.
         levels: how many of the coarsest levels to count.
         progress: called as ``progress(fraction, message)`` at least every ``_PROGRESS_CELLS`` unit cells and after
             each level; raising from it aborts.
@@ -203,16 +206,21 @@ def interval_histograms(
     total = unit_cells + builder.n_cells
     unit_counter = PairCounter(n_bins) if levels == unit_level else None
     reported = 0
-    for first, mins, maxs in unit_cell_slabs(bins, _SLAB_CELLS // (grid[1] * grid[2])):
-        if unit_counter is not None:
-            unit_counter.add(mins, maxs)
-        builder.add_slab(first, mins, maxs)
-        done = (first + len(mins)) * grid[1] * grid[2]
-        if progress is not None and done - reported >= _PROGRESS_CELLS:
-            progress(done / total, "similarity: unit cells")
-            reported = done
+    for start, voxels in voxel_slabs(bins) if is_dask_array(bins) else [(0, bins)]:
+        for first, mins, maxs in unit_cell_slabs(voxels, _SLAB_CELLS // (grid[1] * grid[2])):
+            first += start
+            if unit_counter is not None:
+                unit_counter.add(mins, maxs)
+            builder.add_slab(first, mins, maxs)
+            done = (first + len(mins)) * grid[1] * grid[2]
+            if progress is not None and done - reported >= _PROGRESS_CELLS:
+                progress(done / total, "similarity: unit cells")
+                reported = done
     if unit_counter is not None:
-        yield unit_level, (1, 1, 1), unit_counter.table
+        table = unit_counter.table
+        unit_counter = None
+        yield unit_level, (1, 1, 1), table
+        del table  # tables are n_bins ** 2 int64 (128 MB at 4096 bins): hold none longer than the consumer does
     done = unit_cells
     for level, size, mins, maxs in builder.levels():
         done += mins.size
@@ -226,6 +234,18 @@ def _batched(items: Iterable, size: int) -> Iterator[list]:
     iterator = iter(items)
     while batch := list(islice(iterator, size)):
         yield batch
+
+
+def _add_levels(total: np.ndarray, overlaps: np.ndarray, denominators: np.ndarray, weights: np.ndarray) -> None:
+    """Add ``weights * overlaps / denominators`` of a stack of levels to ``total``, one level after the other.
+
+    Level by level in the stack's order (finest first), so every sum is rounded the same way whatever the batching.
+    """
+    with np.errstate(invalid="ignore", divide="ignore"):
+        terms = np.divide(overlaps, denominators)
+    terms *= weights
+    for term in terms:
+        total += term
 
 
 def isovalue_similarity(
@@ -261,26 +281,18 @@ def isovalue_similarity(
     cell_counts = np.zeros((levels, n_bins), dtype=np.int64)
     sizes = [None] * levels
     histograms = interval_histograms(bins, n_bins, levels, progress)
-    # Levels go finest first and are added one by one in that order, so every sum is rounded the same way whatever
-    # the batching.
     for batch in _batched(histograms, max(1, _STACKED_ENTRIES // (n_bins * n_bins))):
         overlaps = _upper_overlaps(np.stack([histogram for _, _, histogram in batch]), crossing)
         counts = np.diagonal(overlaps, axis1=1, axis2=2)
-        level_weight = weights[[level - 1 for level, _, _ in batch], np.newaxis, np.newaxis]
+        stacked_weights = weights[[level - 1 for level, _, _ in batch], np.newaxis, np.newaxis]
         if normalization == "thesis":
             # O / max(n_i, n_j); where both are 0, so is O, and 0 / 1 gives the 0 the thesis asks for.
-            denominator = np.maximum(np.maximum(counts[:, :, np.newaxis], counts[:, np.newaxis, :]), 1)
-            terms = [(by_column, level_weight * (overlaps / denominator))]
+            denominator = np.maximum(counts[:, :, np.newaxis], counts[:, np.newaxis, :])
+            _add_levels(by_column, overlaps, np.maximum(denominator, 1, out=denominator), stacked_weights)
         else:
             # A(i, j) = O / n_j: NaN where isovalue j crosses nothing, and NaN stays NaN in the sum.
-            with np.errstate(invalid="ignore", divide="ignore"):
-                terms = [
-                    (by_column, level_weight * (overlaps / counts[:, np.newaxis, :])),
-                    (by_row, level_weight * (overlaps / counts[:, :, np.newaxis])),
-                ]
-        for total, weighted in terms:
-            for level_term in weighted:
-                total += level_term
+            _add_levels(by_column, overlaps, counts[:, np.newaxis, :], stacked_weights)
+            _add_levels(by_row, overlaps, counts[:, :, np.newaxis], stacked_weights)
         for k, (level, size, _) in enumerate(batch):
             cell_counts[level - 1] = counts[k]
             sizes[level - 1] = size
@@ -304,7 +316,8 @@ def similarity_matrix(
     """Similarity of every pair of isovalues (thesis eq. 3.1 and 3.2).
 
     Args:
-        bins: 3-D integer array (a quantized volume), values in ``[0, n_bins)``, at least 2 voxels per axis.
+        bins: 3-D integer array (a quantized volume, numpy or dask), values in ``[0, n_bins)``, at least 2 voxels per
+            axis.
         n_bins: number of isovalues.
         crossing: ``"inclusive"`` (isovalue crosses a cell when ``min <= mu <= max``, thesis) or ``"strict"``
             (``min < mu < max``, Ma & Entezari's code).
