@@ -91,21 +91,31 @@ def direct_block_intervals(bins, size, index):
 @pytest.mark.parametrize("planes", [1, 2, 3, 5, 7, 32])
 @pytest.mark.parametrize("shape", [(14, 9, 23), (17, 6, 5), (31, 4, 3), (2, 12, 9)])
 def test_hyper_cell_intervals_match_direct_blocks_for_any_slab_thickness(planes, shape):
-    """Slabs of any thickness, fed in any order, give every level exactly, including levels nested in no finer one."""
+    """Slabs of any thickness give every level exactly, row by row, including levels nested in no finer one."""
     rng = np.random.default_rng(sum(shape) * 10 + planes)
     bins = rng.integers(0, 200, shape).astype(np.uint8)
     mins, maxs = unit_cell_intervals(bins)
     assert mins.shape == tuple(n - 1 for n in shape)
     for index in itertools.product(*(range(n) for n in mins.shape)):
         assert (mins[index], maxs[index]) == direct_block_intervals(bins, (1, 1, 1), index)
-    builder = OctreeBuilder(mins.shape, bins.dtype)
-    slabs = [(first, m.copy(), x.copy()) for first, m, x in unit_cell_slabs(bins, planes)]
-    for first, slab_mins, slab_maxs in slabs[::-1]:
+    rows = {}  # level -> first row -> (mins, maxs) handed to the sink
+
+    def sink(level, first_row, row_mins, row_maxs):
+        assert first_row not in rows.setdefault(level, {})
+        rows[level][first_row] = (row_mins.copy(), row_maxs.copy())
+
+    builder = OctreeBuilder(mins.shape, bins.dtype, sink)
+    for first, slab_mins, slab_maxs in unit_cell_slabs(bins, planes):
         builder.add_slab(first, slab_mins, slab_maxs)
     seen = []
-    for level, size, level_mins, level_maxs in builder.levels():
+    for level in sorted(rows, reverse=True):
         seen.append(level)
-        assert size == octree_levels(mins.shape)[level - 1]
+        size = octree_levels(mins.shape)[level - 1]
+        batches = sorted(rows[level].items())
+        # Consecutive batches of rows from row 0, each handed on once.
+        assert [first for first, _ in batches] == list(np.cumsum([0] + [len(m) for _, (m, _) in batches[:-1]]))
+        level_mins, level_maxs = (np.concatenate([batch[k] for _, batch in batches]) for k in (0, 1))
+        assert level_mins.shape == builder.tiles(level)
         for index in itertools.product(*(range(n) for n in level_mins.shape)):
             expected = direct_block_intervals(bins, size, index)
             assert (level_mins[index], level_maxs[index]) == expected, (level, index)

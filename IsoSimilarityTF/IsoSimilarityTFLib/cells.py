@@ -5,15 +5,19 @@ levels tile the grid of unit cells with hyper-cells whose interval is the union 
 
 The unit cells of a large volume are never held whole: they are computed slab by slab (a few planes at a time, in
 reused buffers that stay in cache), and each slab is reduced at once into the coarser levels that need it
-(:class:`OctreeBuilder`), which are 8 or more times smaller.
+(:class:`OctreeBuilder`); a level holds only its unfinished row of hyper-cells, so no level is held whole either.
 """
 
 from collections.abc import Iterator
-from typing import Optional
+from typing import Callable, Optional
 
 import numpy as np
 
 Shape3 = tuple[int, int, int]
+
+# Hyper-cells of a level small enough to be gathered whole and counted once (8 MB of uint8 minima and maxima); a larger
+# level is counted row by row as its rows are finished, never held whole.
+GATHERED_CELLS = 1 << 22
 
 
 def octree_levels(cell_grid_shape: Shape3) -> list[Shape3]:
@@ -140,80 +144,106 @@ def _reduction_factors(fine: Shape3, coarse: Shape3, cell_grid_shape: Shape3) ->
     return tuple(factors)
 
 
+RowSink = Callable[[int, int, np.ndarray, np.ndarray], None]
+
+
 class OctreeBuilder:
-    """Intervals of the hyper-cells of every octree level but the unit cells, from a stream of unit-cell slabs.
+    """Intervals of the hyper-cells of every octree level but the unit cells, streamed row by row along axis 0.
 
     Each level is block-reduced from the smallest finer level whose tiling nests in it: the next finer level whenever
-    sizes halve exactly (power-of-two grids). A level nested in no finer level but the unit cells (e.g. 15 unit cells
-    per hyper-cell under a level of 8) is reduced from the unit-cell slabs as they stream by, like the second finest
-    level; the others are reduced once the stream has ended.
+    sizes halve exactly (power-of-two grids); a level nested in no finer level but the unit cells (e.g. 15 unit cells
+    per hyper-cell under a level of 8) is reduced from the unit-cell slabs, like the second finest level. A level holds
+    only its one unfinished row of hyper-cells (a plane of them along axis 0): as soon as a row is complete it is handed
+    to ``sink`` and folded into the coarser levels, so no level is held whole (memory: one plane of hyper-cells per
+    level, whatever the volume's depth).
 
-    Usage: :meth:`add_slab` for every slab of :func:`unit_cell_slabs`, in any order, then :meth:`levels`.
+    Usage: :meth:`add_slab` for every slab of :func:`unit_cell_slabs`, in order along axis 0; every row of every level
+    has been handed to ``sink`` once the last slab is added.
     """
 
-    def __init__(self, cell_grid_shape: Shape3, dtype: np.dtype) -> None:
+    def __init__(self, cell_grid_shape: Shape3, dtype: np.dtype, sink: RowSink) -> None:
+        """
+        Args:
+            cell_grid_shape: unit cells per axis.
+            dtype: integer dtype of the intervals.
+            sink: called as ``sink(level, first_row, mins, maxs)`` with finished rows ``first_row ..`` of a level
+                (arrays of shape ``(rows, t1, t2)``, valid only during the call), every row of every level once.
+        """
         self.grid = tuple(int(n) for n in cell_grid_shape)
         self.sizes = octree_levels(self.grid)
-        # level -> (source level or None for the unit cells, blocks of the source per hyper-cell)
+        self._sink = sink
+        # level -> (source level, or None for the unit cells; blocks of the source per hyper-cell)
         self._sources: dict[int, tuple[Optional[int], Shape3]] = {}
-        # level -> (mins, maxs) of the levels fed by the slabs; min and max identities until every slab is added.
-        self._streamed: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         for level in range(len(self.sizes) - 1, 0, -1):
             size = self.sizes[level - 1]
             nested = []
             for finer in self._sources:
                 factors = _reduction_factors(self.sizes[finer - 1], size, self.grid)
                 if factors is not None:
-                    nested.append((self._cells(finer), finer, factors))
+                    nested.append((self.n_level_cells(finer), finer, factors))
             if nested:
                 _, source, factors = min(nested)
                 self._sources[level] = (source, factors)
-                continue
-            self._sources[level] = (None, _reduction_factors((1, 1, 1), size, self.grid))
-            shape = self._tiles(level)
-            self._streamed[level] = (np.full(shape, np.iinfo(dtype).max, dtype=dtype), np.zeros(shape, dtype=dtype))
+            else:
+                self._sources[level] = (None, _reduction_factors((1, 1, 1), size, self.grid))
+        self._dependents: dict[Optional[int], list[int]] = {}
+        for level, (source, _) in self._sources.items():
+            self._dependents.setdefault(source, []).append(level)
+        # level -> (mins, maxs) of its unfinished row, shape (1, t1, t2); absent when no row is begun.
+        self._pending: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
-    def _tiles(self, level: int) -> Shape3:
+    def tiles(self, level: int) -> Shape3:
+        """Hyper-cells per axis at ``level``."""
         return tuple(-(-n // s) for n, s in zip(self.grid, self.sizes[level - 1]))
 
-    def _cells(self, level: int) -> int:
-        return int(np.prod(self._tiles(level)))
+    def n_level_cells(self, level: int) -> int:
+        """Hyper-cells at ``level``."""
+        return int(np.prod(self.tiles(level)))
 
     @property
     def n_cells(self) -> int:
         """Hyper-cells over all levels but the unit cells."""
-        return sum(self._cells(level) for level in self._sources)
+        return sum(self.n_level_cells(level) for level in self._sources)
 
     def add_slab(self, first: int, mins: np.ndarray, maxs: np.ndarray) -> None:
-        """Fold unit-cell planes ``first .. first + len(mins) - 1`` into the levels reduced from the unit cells."""
-        for level, targets in self._streamed.items():
-            f0, f1, f2 = self._sources[level][1]
-            # Planes that finish a hyper-cell begun in an earlier slab, then hyper-cells starting in this one.
-            head = min(len(mins), -first % f0)
-            parts = ((first // f0, 0, head, (head, f1, f2)), ((first + head) // f0, head, len(mins), (f0, f1, f2)))
-            for row, start, stop, factors in parts:
-                if start == stop:
-                    continue
-                for values, target, reduce in ((mins, targets[0], np.minimum), (maxs, targets[1], np.maximum)):
-                    block = block_reduce(values[start:stop], factors, reduce)
-                    rows = target[row : row + len(block)]
-                    reduce(rows, block, out=rows)  # the hyper-cells may hold planes of other slabs too
+        """Fold unit-cell planes ``first .. first + len(mins) - 1`` (the next ones along axis 0) into the levels."""
+        for level in self._dependents.get(None, ()):
+            self._fold(level, first, mins, maxs)
 
-    def levels(self) -> Iterator[tuple[int, Shape3, np.ndarray, np.ndarray]]:
-        """Intervals of every level but the unit cells, finest first, once every slab has been added.
+    def _fold(self, level: int, first: int, mins: np.ndarray, maxs: np.ndarray) -> None:
+        """Fold planes ``first ..`` of the level's source into its rows, handing on every row they finish."""
+        source, (f0, f1, f2) = self._sources[level]
+        planes = self.grid[0] if source is None else self.tiles(source)[0]
+        count = len(mins)
+        # Planes that finish the row begun by earlier planes, then whole rows, then the start of the next row.
+        head = min(count, -first % f0)
+        if head:
+            self._extend_pending(level, mins[:head], maxs[:head], (head, f1, f2))
+            if (first + head) % f0 == 0 or first + head == planes:
+                self._finish(level, first // f0, *self._pending.pop(level))
+        rest = first + head
+        whole = count - head if first + count == planes else (count - head) // f0 * f0
+        if whole:
+            reduced = [block_reduce(a[head : head + whole], (f0, f1, f2), r) for a, r in _extremes(mins, maxs)]
+            self._finish(level, rest // f0, *reduced)
+        if head + whole < count:
+            tail = count - head - whole
+            self._extend_pending(level, mins[head + whole :], maxs[head + whole :], (tail, f1, f2))
 
-        Yields:
-            ``(level, size, mins, maxs)``: level number (1 = coarsest), hyper-cell size in unit cells, and the interval
-            arrays of shape ``ceil(c / size)`` per axis.
-        """
-        done: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        for level, (source, factors) in self._sources.items():
-            if source is None:
-                done[level] = self._streamed[level]
-            else:
-                source_mins, source_maxs = done[source]
-                done[level] = (
-                    block_reduce(source_mins, factors, np.minimum),
-                    block_reduce(source_maxs, factors, np.maximum),
-                )
-            yield (level, self.sizes[level - 1], *done[level])
+    def _extend_pending(self, level: int, mins: np.ndarray, maxs: np.ndarray, factors: Shape3) -> None:
+        reduced = [block_reduce(a, factors, r) for a, r in _extremes(mins, maxs)]
+        if level in self._pending:
+            for target, block, (_, reduce) in zip(self._pending[level], reduced, _extremes(mins, maxs)):
+                reduce(target, block, out=target)
+        else:  # a copy: the block may be a view of the caller's reused buffer
+            self._pending[level] = (reduced[0].copy(), reduced[1].copy())
+
+    def _finish(self, level: int, first_row: int, mins: np.ndarray, maxs: np.ndarray) -> None:
+        self._sink(level, first_row, mins, maxs)
+        for coarser in self._dependents.get(level, ()):
+            self._fold(coarser, first_row, mins, maxs)
+
+
+def _extremes(mins: np.ndarray, maxs: np.ndarray) -> tuple[tuple[np.ndarray, np.ufunc], tuple[np.ndarray, np.ufunc]]:
+    """The minima with their reduction, then the maxima with theirs."""
+    return (mins, np.minimum), (maxs, np.maximum)

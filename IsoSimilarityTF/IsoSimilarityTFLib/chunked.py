@@ -24,7 +24,10 @@ def is_dask_array(values: object) -> bool:
 
 
 def voxel_slabs(volume, halo: int = 1) -> Iterator[tuple[int, np.ndarray]]:
-    """Consecutive slabs of a dask volume along axis 0, one row of chunks each, computed one at a time.
+    """Consecutive slabs of a dask volume along axis 0, one row of chunks each.
+
+    The next slab is computed (read and quantized, by dask's scheduler) while the caller works on the current one, so
+    the reading overlaps the octree pass; two slabs are held at a time.
 
     Args:
         volume: 3-D dask array.
@@ -33,11 +36,21 @@ def voxel_slabs(volume, halo: int = 1) -> Iterator[tuple[int, np.ndarray]]:
     Yields:
         ``(first, slab)``: index of the slab's first plane and the slab as a numpy array.
     """
-    first = 0
-    for planes in volume.chunks[0]:
-        stop = min(first + planes + halo, volume.shape[0])
-        yield first, np.asarray(volume[first:stop])
-        first += planes
+    from concurrent.futures import ThreadPoolExecutor
+
+    starts = np.cumsum((0, *volume.chunks[0][:-1]))
+    bounds = [
+        (int(first), min(int(first) + planes + halo, volume.shape[0]))
+        for first, planes in zip(starts, volume.chunks[0])
+    ]
+    with ThreadPoolExecutor(1) as reader:
+        pending = reader.submit(np.asarray, volume[bounds[0][0] : bounds[0][1]])
+        for k, (first, _) in enumerate(bounds):
+            slab = pending.result()
+            if k + 1 < len(bounds):
+                pending = reader.submit(np.asarray, volume[bounds[k + 1][0] : bounds[k + 1][1]])
+            yield first, slab
+            del slab  # let the slab go before the next one is waited for
 
 
 def quantize_chunked(values, n_bins: int = 256, value_range: Optional[tuple[float, float]] = None) -> Quantization:

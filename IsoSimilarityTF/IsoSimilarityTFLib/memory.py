@@ -7,18 +7,17 @@ taking the user's Slicer session with it. A clear error up front is better.
 import os
 from typing import Optional
 
+from .cells import GATHERED_CELLS, octree_levels
 from .errors import InsufficientMemoryError
 from .quantize import MAX_BINS
 
-# Bytes per voxel at the peak of the similarity stage, per byte of bin index: the quantized volume (not held for a
-# volume streamed from a dask array), and the hyper-cell minima and maxima of the second finest octree level (1/8 of
-# the voxels; the unit cells are never held whole), of the coarser levels reduced from it (1/7 of that) and of a level
-# nested in no finer one (at most 1/27).
+# Bytes per voxel of the quantized volume, per byte of bin index (not held for a volume streamed from a dask array).
+# The unit cells are never held whole, nor are the octree levels above them: a level of more than
+# ``cells.GATHERED_CELLS`` hyper-cells is counted row by row into its own table, a smaller one is gathered whole.
 _BINS_BYTES_PER_VOXEL = 1
-_LEVELS_BYTES_PER_VOXEL = 2 / 8 * (1 + 1 / 7) + 2 / 27
 # Float64 matrices of n_bins x n_bins alive at once while aggregating the levels.
 _MATRICES = 6
-# Slabs, chunks and libraries.
+# Slabs, chunks (a streamed volume: up to three rows of chunks, see chunked.voxel_slabs) and libraries.
 _OVERHEAD_BYTES = 256 << 20
 
 
@@ -83,8 +82,16 @@ def design_memory_bytes(shape: tuple, n_bins: int, streamed: bool = False) -> in
     for n in shape:
         voxels *= int(n)
     index_bytes = 1 if n_bins <= 256 else 2
-    per_voxel = _LEVELS_BYTES_PER_VOXEL + (0 if streamed else _BINS_BYTES_PER_VOXEL)
-    return int(voxels * index_bytes * per_voxel + _MATRICES * 8 * n_bins * n_bins + _OVERHEAD_BYTES)
+    table_bytes = 8 * n_bins * n_bins
+    levels_bytes = table_bytes  # the unit cells' table
+    grid = tuple(max(int(n) - 1, 1) for n in shape)
+    for size in octree_levels(grid)[:-1] if len(grid) == 3 else ():  # not a volume: refused by the step that reads it
+        cells = 1
+        for n, s in zip(grid, size):
+            cells *= -(-n // s)
+        levels_bytes += table_bytes if cells > max(GATHERED_CELLS, n_bins * n_bins) else 2 * cells * index_bytes
+    bins_bytes = 0 if streamed else voxels * index_bytes * _BINS_BYTES_PER_VOXEL
+    return int(bins_bytes + levels_bytes + _MATRICES * table_bytes + _OVERHEAD_BYTES)
 
 
 def check_memory(shape: tuple, n_bins: Optional[int], *, input_bytes: int = 0, streamed: bool = False) -> None:

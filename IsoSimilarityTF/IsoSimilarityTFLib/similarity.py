@@ -12,7 +12,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from .cells import OctreeBuilder, Shape3, octree_levels, unit_cell_slabs
+from .cells import GATHERED_CELLS, OctreeBuilder, Shape3, octree_levels, unit_cell_slabs
 from .chunked import is_dask_array, voxel_slabs
 from .memory import check_memory
 from .quantize import MAX_BINS
@@ -179,15 +179,48 @@ def _check_bins(bins: np.ndarray, n_bins: int) -> np.ndarray:
     return bins
 
 
+def _counted_row_by_row(cells: int, n_bins: int) -> bool:
+    """Whether a level of ``cells`` hyper-cells is counted row by row (larger than its table and than
+    :data:`~.cells.GATHERED_CELLS`) rather than gathered whole."""
+    return cells > max(GATHERED_CELLS, n_bins * n_bins)
+
+
+class _LevelHistogram:
+    """Joint (min, max) histogram of one octree level, from its rows as they are finished.
+
+    A small level is gathered whole and counted once (its table is made only when asked for: tables are
+    ``n_bins ** 2`` int64, 128 MB at 4096 bins); a large one is counted row by row and never held whole.
+    """
+
+    def __init__(self, tiles: Shape3, dtype: np.dtype, n_bins: int) -> None:
+        self.n_bins = n_bins
+        cells = int(np.prod(tiles))
+        self._counter = PairCounter(n_bins) if _counted_row_by_row(cells, n_bins) else None
+        self._gathered = None if self._counter else (np.empty(tiles, dtype=dtype), np.empty(tiles, dtype=dtype))
+
+    def add_rows(self, first_row: int, mins: np.ndarray, maxs: np.ndarray) -> None:
+        if self._counter is not None:
+            self._counter.add(mins, maxs)
+        else:
+            self._gathered[0][first_row : first_row + len(mins)] = mins
+            self._gathered[1][first_row : first_row + len(maxs)] = maxs
+
+    def table(self) -> np.ndarray:
+        """``(n_bins, n_bins)`` int64, once every row has been added."""
+        if self._counter is not None:
+            return self._counter.table
+        return joint_interval_histogram(*self._gathered, self.n_bins)
+
+
 def interval_histograms(
     bins: np.ndarray, n_bins: int, levels: int, progress: Optional[ProgressCallback] = None
 ) -> Iterator[tuple[int, Shape3, np.ndarray]]:
     """Joint (min, max) histogram of the hyper-cells of each of the ``levels`` coarsest octree levels.
 
-    One pass over the volume in slabs: each slab's unit cells are counted while in cache and folded into the coarser
-    levels; no array of the volume's size is made, and a dask volume is read one row of chunks at a time. Memory:
-    the second finest level (a quarter of a byte per voxel for uint8 bins) and the coarser ones, plus
-    ``n_bins ** 2`` int64 per table.
+    One pass over the volume in slabs along axis 0: each slab's unit cells are counted while in cache and folded into
+    the coarser levels, whose rows are counted as soon as they are finished; no array of the volume's size is made,
+    and a dask volume is read a few planes at a time. Memory: one plane of hyper-cells per level, the levels of at
+    most ``GATHERED_CELLS`` hyper-cells, and ``n_bins ** 2`` int64 per table.
 
     Args:
         bins: 3-D uint8 or uint16 array (numpy or dask), values in ``[0, n_bins)``.
@@ -200,8 +233,17 @@ def interval_histograms(
         ``(n_bins, n_bins)`` int64 table.
     """
     grid = tuple(n - 1 for n in bins.shape)
-    unit_level = len(octree_levels(grid))
-    builder = OctreeBuilder(grid, bins.dtype)
+    sizes = octree_levels(grid)
+    unit_level = len(sizes)
+    histograms: dict[int, _LevelHistogram] = {}
+
+    def count_rows(level: int, first_row: int, mins: np.ndarray, maxs: np.ndarray) -> None:
+        if level in histograms:
+            histograms[level].add_rows(first_row, mins, maxs)
+
+    builder = OctreeBuilder(grid, bins.dtype, count_rows)
+    for level in range(min(levels, unit_level - 1), 0, -1):
+        histograms[level] = _LevelHistogram(builder.tiles(level), bins.dtype, n_bins)
     unit_cells = int(np.prod(grid))
     total = unit_cells + builder.n_cells
     unit_counter = PairCounter(n_bins) if levels == unit_level else None
@@ -222,10 +264,9 @@ def interval_histograms(
         yield unit_level, (1, 1, 1), table
         del table  # tables are n_bins ** 2 int64 (128 MB at 4096 bins): hold none longer than the consumer does
     done = unit_cells
-    for level, size, mins, maxs in builder.levels():
-        done += mins.size
-        if level <= levels:
-            yield level, size, joint_interval_histogram(mins, maxs, n_bins)
+    for level, histogram in histograms.items():
+        yield level, sizes[level - 1], histogram.table()
+        done += builder.n_level_cells(level)
         if progress is not None:
             progress(done / total, f"similarity: level {level} of {unit_level}")
 
