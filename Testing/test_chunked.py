@@ -124,3 +124,28 @@ def test_odd_shapes_in_thin_chunk_rows_are_bit_identical(shape, rows, monkeypatc
         result = isovalue_similarity(da.from_array(bins, chunks=chunks), 40, **options)
         np.testing.assert_array_equal(result.matrix, expected.matrix)
         np.testing.assert_array_equal(result.cell_counts, expected.cell_counts)
+
+
+def test_a_dask_volume_is_read_twice_only():
+    """The value range, then the similarity's pass, which also counts the voxels and keeps the background-contact
+    planes: the classes stage reads nothing more."""
+    values = blob_volume()
+    reads = []
+
+    def read(block, block_info=None):
+        reads.append(tuple(block_info[0]["array-location"][0]))
+        return block
+
+    volume = da.from_array(values, chunks=(6, 18, 31)).map_blocks(read, dtype=values.dtype)
+    expected = design_transfer_function(values, n_bins=64)
+    design = design_transfer_function(volume, n_bins=64)
+    assert {**design.to_dict(), "timings_s": None} == {**expected.to_dict(), "timings_s": None}
+    assert sorted(set(reads)) == [(0, 6), (6, 12), (12, 18), (18, 23)]
+    assert all(reads.count(chunk) == 2 for chunk in set(reads)), sorted(reads)
+
+
+def test_dask_bins_out_of_range_are_refused_during_the_pass():
+    bins = np.zeros((9, 5, 6), dtype=np.int64)
+    bins[7, 2, 3] = 300  # would wrap to 44 in uint8
+    with pytest.raises(ValueError, match=r"bins must lie in \[0, 256\); found 300"):
+        isovalue_similarity(da.from_array(bins, chunks=(3, 5, 6)), 256)

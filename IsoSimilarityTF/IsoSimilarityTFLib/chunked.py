@@ -15,6 +15,7 @@ from typing import Optional
 
 import numpy as np
 
+from .classes import contact_planes
 from .quantize import Quantization, bin_volume, bins_dtype, checked_value_range, validate_volume
 
 
@@ -23,34 +24,36 @@ def is_dask_array(values: object) -> bool:
     return any(cls.__module__.startswith("dask.") and cls.__name__ == "Array" for cls in type(values).__mro__)
 
 
-def voxel_slabs(volume, halo: int = 1) -> Iterator[tuple[int, np.ndarray]]:
-    """Consecutive slabs of a dask volume along axis 0, one row of chunks each.
+def voxel_slabs(volume, overlap: bool = True) -> Iterator[tuple[int, np.ndarray]]:
+    """Consecutive slabs of a dask volume along axis 0, one row of chunks each, every chunk computed once.
 
-    The next slab is computed (read and quantized, by dask's scheduler) while the caller works on the current one, so
-    the reading overlaps the octree pass; two slabs are held at a time.
+    The next row is computed (read and quantized, by dask's scheduler) while the caller works on the current slab, so
+    the reading overlaps the octree pass: about two rows of chunks are held at a time.
 
     Args:
         volume: 3-D dask array.
-        halo: planes of the next row of chunks added to each slab (1 for unit cells across the border, 0 to count).
+        overlap: start each slab but the first with the last plane of the previous row (the unit cells across the
+            border need both planes: a one-voxel halo, taken from the row already read rather than read again).
 
     Yields:
         ``(first, slab)``: index of the slab's first plane and the slab as a numpy array.
     """
     from concurrent.futures import ThreadPoolExecutor
 
-    starts = np.cumsum((0, *volume.chunks[0][:-1]))
-    bounds = [
-        (int(first), min(int(first) + planes + halo, volume.shape[0]))
-        for first, planes in zip(starts, volume.chunks[0])
-    ]
+    starts = [int(first) for first in np.cumsum((0, *volume.chunks[0]))]
     with ThreadPoolExecutor(1) as reader:
-        pending = reader.submit(np.asarray, volume[bounds[0][0] : bounds[0][1]])
-        for k, (first, _) in enumerate(bounds):
-            slab = pending.result()
-            if k + 1 < len(bounds):
-                pending = reader.submit(np.asarray, volume[bounds[k + 1][0] : bounds[k + 1][1]])
-            yield first, slab
-            del slab  # let the slab go before the next one is waited for
+        pending = reader.submit(np.asarray, volume[starts[0] : starts[1]])
+        previous = None
+        for k, first in enumerate(starts[:-1]):
+            row = pending.result()
+            if k + 2 < len(starts):
+                pending = reader.submit(np.asarray, volume[starts[k + 1] : starts[k + 2]])
+            if overlap and previous is not None:
+                yield first - 1, np.concatenate((previous, row))
+            else:
+                yield first, row
+            previous = row[-1:].copy()
+            del row  # let the row go before the next one is waited for
 
 
 def quantize_chunked(values, n_bins: int = 256, value_range: Optional[tuple[float, float]] = None) -> Quantization:
@@ -96,3 +99,32 @@ def _merge_thin_chunks(chunks: tuple[int, ...]) -> tuple[int, ...]:
         else:
             merged.append(size)
     return tuple(merged)
+
+
+class SlabTap:
+    """What the classes stage needs of a streamed volume, gathered from the slabs of the similarity pass.
+
+    Called as ``tap(first, slab)`` with every slab of bins in order along axis 0 (slabs may overlap by a halo plane):
+    counts the voxels per bin and keeps a copy of the planes that :func:`~.classes.background_contact` measures, so
+    the classes stage makes no pass of its own over the volume. Memory: ``n_bins`` counts and at most about
+    3 x ``classes._CONTACT_SAMPLE_VOXELS`` voxels of bins.
+    """
+
+    def __init__(self, shape: tuple[int, int, int], n_bins: int) -> None:
+        self.shape = tuple(int(n) for n in shape)
+        self.voxel_counts = np.zeros(n_bins, dtype=np.int64)
+        self._kept = {k + d for k in contact_planes(self.shape) for d in (-1, 0, 1) if 0 <= k + d < self.shape[0]}
+        self._planes: dict[int, np.ndarray] = {}
+        self._next = 0  # first plane not yet counted
+
+    def __call__(self, first: int, slab: np.ndarray) -> None:
+        new = slab[self._next - first :]  # the planes of the halo were counted with the previous slab
+        self.voxel_counts += np.bincount(new.reshape(-1), minlength=self.voxel_counts.size)
+        for k in range(self._next, first + len(slab)):
+            if k in self._kept:
+                self._planes[k] = slab[k - first].copy()
+        self._next = first + len(slab)
+
+    def __getitem__(self, plane: int) -> np.ndarray:
+        """A plane kept for the background contact, shape ``(n1, n2)``."""
+        return self._planes[plane]

@@ -100,7 +100,9 @@ def background_contact(bins: np.ndarray, labels: np.ndarray, background_id: int)
     """Share of each class's voxels that have a background voxel among their 6 neighbours.
 
     Args:
-        bins: quantized volume, shape ``(n0, n1, n2)`` (numpy, or dask: only the planes measured are read).
+        bins: quantized volume, shape ``(n0, n1, n2)``: numpy, dask (only the planes measured are read), or anything
+            with ``shape`` whose planes ``bins[k]`` can be read for the planes of :func:`contact_planes` and their
+            neighbours (:class:`~.chunked.SlabTap`'s planes).
         labels: ``(n_bins,)`` class id per bin.
         background_id: the background class.
 
@@ -112,11 +114,10 @@ def background_contact(bins: np.ndarray, labels: np.ndarray, background_id: int)
     # Twice the class id per bin, so that adding "touches the background" (0 or 1) makes one index per voxel.
     twice_class_of_bin = 2 * np.asarray(labels, dtype=np.uint16)
     background = 2 * background_id
-    step = max(1, bins.size // _CONTACT_SAMPLE_VOXELS)
     counts = np.zeros(2 * n_classes, dtype=np.int64)
     # Each plane's classes are looked up once, and kept while it neighbours the planes measured.
     looked_up: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    for plane in range(0, bins.shape[0], step):
+    for plane in contact_planes(bins.shape):
         window = range(max(plane - 1, 0), min(plane + 2, bins.shape[0]))
         looked_up = {
             k: looked_up[k] if k in looked_up else _plane_classes(twice_class_of_bin, np.asarray(bins[k]), background)
@@ -133,6 +134,13 @@ def background_contact(bins: np.ndarray, labels: np.ndarray, background_id: int)
         counts += np.bincount((classes + near).reshape(-1), minlength=2 * n_classes)
     touching, totals = counts[1::2], counts[0::2] + counts[1::2]
     return touching / np.maximum(totals, 1)
+
+
+def contact_planes(shape: tuple[int, int, int]) -> range:
+    """The planes along axis 0 on which :func:`background_contact` measures a volume of ``shape`` voxels (it also reads
+    their neighbours): evenly spaced, about ``_CONTACT_SAMPLE_VOXELS`` voxels in all."""
+    step = max(1, int(np.prod(shape, dtype=np.float64)) // _CONTACT_SAMPLE_VOXELS)
+    return range(0, shape[0], step)
 
 
 def _plane_classes(twice_class_of_bin: np.ndarray, plane: np.ndarray, background: int) -> tuple[np.ndarray, np.ndarray]:

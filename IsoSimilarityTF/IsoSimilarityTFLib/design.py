@@ -9,7 +9,7 @@ from typing import Callable, Optional, Union
 
 import numpy as np
 
-from .chunked import is_dask_array, quantize_chunked
+from .chunked import SlabTap, is_dask_array, quantize_chunked
 from .classes import IsovalueClass, build_classes, runs
 from .clustering import FALLBACK_DAMPINGS, cluster_isovalues, unconverged_advice
 from .errors import ClusteringError
@@ -472,6 +472,8 @@ def design_transfer_function(
         else:
             quantized = quantize(values, opts["n_bins"], opts["value_range"])
 
+    # A streamed volume's voxel counts and background-contact planes are gathered during the similarity's pass.
+    tap = SlabTap(shape, quantized.n_bins) if chunked else None
     with stage("similarity", "measuring isosurface similarity"):
         similarity = isovalue_similarity(
             quantized.bins,
@@ -480,6 +482,7 @@ def design_transfer_function(
             normalization=opts["normalization"],
             levels=opts["levels"],
             progress=lambda fraction, message: report("similarity", fraction, message),
+            on_slab=tap,
         )
 
     with stage("clustering", "affinity propagation"):
@@ -508,14 +511,14 @@ def design_transfer_function(
             )
 
     with stage("classes", "ranking classes"):
-        bin_voxels = quantized.voxel_counts()
+        bin_voxels = quantized.voxel_counts() if tap is None else tap.voxel_counts
         classes = build_classes(
             clusters.labels,
             clusters.exemplars,
             bin_voxels,
             quantized.edges,
             background=opts["background"],
-            bins=quantized.bins,
+            bins=quantized.bins if tap is None else tap,
         )
 
     with stage("tissues", "grouping classes into tissues"):
@@ -527,7 +530,7 @@ def design_transfer_function(
             similarity.matrix,
         )
         kind = detect_kind(
-            np.asarray(values).dtype if not isinstance(values, Quantization) else np.float64,
+            np.float64 if isinstance(values, Quantization) else values.dtype if chunked else np.asarray(values).dtype,
             quantized.value_range,
             opts["modality"],
         )

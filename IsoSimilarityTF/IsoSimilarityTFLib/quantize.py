@@ -58,7 +58,7 @@ class Quantization:
         if not isinstance(self.bins, np.ndarray):  # a dask volume: one row of chunks at a time
             from .chunked import voxel_slabs
 
-            slabs = voxel_slabs(self.bins, halo=0)
+            slabs = voxel_slabs(self.bins, overlap=False)
             return sum(Quantization(slab, self.n_bins, self.value_range).voxel_counts() for _, slab in slabs)
         flat = self.bins.reshape(-1)
         if flat.dtype != np.uint8:

@@ -169,14 +169,28 @@ def _check_bins(bins: np.ndarray, n_bins: int) -> np.ndarray:
         raise ValueError(f"bins must hold integers (use quantize() first); got dtype {bins.dtype}")
     if isinstance(n_bins, bool) or not isinstance(n_bins, (int, np.integer)) or not 2 <= n_bins <= MAX_BINS:
         raise ValueError(f"n_bins must be an integer from 2 to {MAX_BINS}; got {n_bins!r}")
-    check_memory(bins.shape, int(n_bins))  # a clear error, not numpy's MemoryError (or the OOM killer) mid-way
-    # Scan the volume only for the bounds its dtype does not already guarantee (none for uint8 and 256 bins).
+    # A clear error, not numpy's MemoryError (or the OOM killer) mid-way.
+    check_memory(bins.shape, int(n_bins), streamed=is_dask_array(bins))
+    if not is_dask_array(bins):  # a dask volume's slabs are checked as they are read: no pass of its own
+        _check_bin_bounds(bins, n_bins)
+    return bins
+
+
+def _check_bin_bounds(bins: np.ndarray, n_bins: int) -> None:
+    """Raise ValueError unless every bin lies in ``[0, n_bins)``.
+
+    Scans only for the bounds the dtype does not already guarantee (none for uint8 and 256 bins).
+    """
     limits = np.iinfo(bins.dtype)
     low = int(bins.min()) if limits.min < 0 else 0
     high = int(bins.max()) if limits.max >= n_bins else 0
     if low < 0 or high >= n_bins:
         raise ValueError(f"bins must lie in [0, {n_bins}); found {low if low < 0 else high}")
-    return bins
+
+
+def _index_dtype(n_bins: int) -> np.dtype:
+    """The smallest unsigned integer type of the bins the engine works on."""
+    return np.dtype(np.uint8 if n_bins <= 256 else np.uint16)
 
 
 def _counted_row_by_row(cells: int, n_bins: int) -> bool:
@@ -213,7 +227,11 @@ class _LevelHistogram:
 
 
 def interval_histograms(
-    bins: np.ndarray, n_bins: int, levels: int, progress: Optional[ProgressCallback] = None
+    bins: np.ndarray,
+    n_bins: int,
+    levels: int,
+    progress: Optional[ProgressCallback] = None,
+    on_slab: Optional[Callable[[int, np.ndarray], None]] = None,
 ) -> Iterator[tuple[int, Shape3, np.ndarray]]:
     """Joint (min, max) histogram of the hyper-cells of each of the ``levels`` coarsest octree levels.
 
@@ -223,10 +241,13 @@ def interval_histograms(
     most ``GATHERED_CELLS`` hyper-cells, and ``n_bins ** 2`` int64 per table.
 
     Args:
-        bins: 3-D uint8 or uint16 array (numpy or dask), values in ``[0, n_bins)``.
+        bins: 3-D uint8 or uint16 array (numpy), or integer dask array (checked and cast slab by slab), values in
+            ``[0, n_bins)``.
         levels: how many of the coarsest levels to count.
         progress: called as ``progress(fraction, message)`` at least every ``_PROGRESS_CELLS`` unit cells and after
             each level; raising from it aborts.
+        on_slab: called as ``on_slab(first, voxels)`` with each slab of bins read (in order along axis 0, the next
+            slab's first plane included), so that other passes over the volume can ride on this one.
 
     Yields:
         ``(level, size, histogram)`` finest level first: level number (1 = coarsest), hyper-cell size in unit cells,
@@ -241,14 +262,21 @@ def interval_histograms(
         if level in histograms:
             histograms[level].add_rows(first_row, mins, maxs)
 
-    builder = OctreeBuilder(grid, bins.dtype, count_rows)
+    dtype = bins.dtype if bins.dtype in (np.uint8, np.uint16) else _index_dtype(n_bins)
+    builder = OctreeBuilder(grid, dtype, count_rows)
     for level in range(min(levels, unit_level - 1), 0, -1):
-        histograms[level] = _LevelHistogram(builder.tiles(level), bins.dtype, n_bins)
+        histograms[level] = _LevelHistogram(builder.tiles(level), dtype, n_bins)
     unit_cells = int(np.prod(grid))
     total = unit_cells + builder.n_cells
     unit_counter = PairCounter(n_bins) if levels == unit_level else None
     reported = 0
-    for start, voxels in voxel_slabs(bins) if is_dask_array(bins) else [(0, bins)]:
+    chunked = is_dask_array(bins)
+    for start, voxels in voxel_slabs(bins) if chunked else [(0, bins)]:
+        if chunked:
+            _check_bin_bounds(voxels, n_bins)
+            voxels = voxels.astype(dtype, copy=False)
+        if on_slab is not None:
+            on_slab(start, voxels)
         for first, mins, maxs in unit_cell_slabs(voxels, _SLAB_CELLS // (grid[1] * grid[2])):
             first += start
             if unit_counter is not None:
@@ -297,10 +325,11 @@ def isovalue_similarity(
     normalization: str = "thesis",
     levels: Optional[int] = None,
     progress: Optional[ProgressCallback] = None,
+    on_slab: Optional[Callable[[int, np.ndarray], None]] = None,
 ) -> IsovalueSimilarity:
     """Hierarchical similarity of all isovalue pairs, with the per-level cell counts it came from.
 
-    See :func:`similarity_matrix` for the arguments.
+    See :func:`similarity_matrix` for the arguments, and :func:`interval_histograms` for ``on_slab``.
     """
     _check_options(crossing, normalization)
     bins = _check_bins(bins, n_bins)
@@ -312,8 +341,8 @@ def isovalue_similarity(
         raise ValueError(f"levels must be an integer from 1 to {all_levels} for this volume; got {levels!r}")
     levels = int(levels)
 
-    if bins.dtype not in (np.uint8, np.uint16):
-        bins = bins.astype(np.uint8 if n_bins <= 256 else np.uint16)
+    if bins.dtype not in (np.uint8, np.uint16) and not is_dask_array(bins):  # a dask volume's slabs are cast as read
+        bins = bins.astype(_index_dtype(n_bins))
     weights = level_weights(levels)
     # Only the upper triangles (i <= j) are summed; the matrix is mirrored at the end. Ma & Entezari's A(i, j) and
     # A(j, i) = O(i, j) / n(i) are summed apart ("by column" and "by row"), then merged by their element-wise minimum.
@@ -321,7 +350,7 @@ def isovalue_similarity(
     by_row = np.zeros_like(by_column) if normalization == "ma-entezari" else None
     cell_counts = np.zeros((levels, n_bins), dtype=np.int64)
     sizes = [None] * levels
-    histograms = interval_histograms(bins, n_bins, levels, progress)
+    histograms = interval_histograms(bins, n_bins, levels, progress, on_slab)
     for batch in _batched(histograms, max(1, _STACKED_ENTRIES // (n_bins * n_bins))):
         overlaps = _upper_overlaps(np.stack([histogram for _, _, histogram in batch]), crossing)
         counts = np.diagonal(overlaps, axis1=1, axis2=2)
