@@ -29,6 +29,7 @@ from .inputs import DEFAULT_PHANTOM_SIZE, MAX_PHANTOM_SIZE, MIN_PHANTOM_SIZE
 from .outputs import DEFAULT_BACKDROP, DEFAULT_RAY_CASTING, DEFAULT_SIZE, DEFAULT_VIEW, MAX_SIZE, MIN_SIZE
 from .rendering import BACKDROPS, RAY_CASTING, VIEW_DIRECTIONS
 from .run import STAGES, run
+from .scheduler import use_scheduler
 
 PROG = "isosimtf"
 EXIT_OK, EXIT_PROCESSING, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -181,6 +182,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="Slicer's CPU or GPU (OpenGL) ray casting for the pictures (default %(default)s)",
     )
     output.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="dask.distributed scheduler that reads a volume larger than memory (default: dask's local threads)",
+    )
+    output.add_argument(
         "-q", "--quiet", action="store_true", help="no progress lines on stderr (the summary still goes to stdout)"
     )
 
@@ -218,6 +224,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     total = len(STAGES) - (1 if args.no_render else 0)
     progress = ProgressPrinter(total, stream=sys.stderr, quiet=args.quiet)
     try:
+        use_scheduler(args.scheduler)
         result = run(
             args.input,
             args.output,

@@ -6,6 +6,7 @@ from typing import Optional, Union
 
 import numpy as np
 
+from IsoSimilarityTFLib.chunked import is_dask_array
 from IsoSimilarityTFLib.errors import UsageError
 from IsoSimilarityTFLib.memory import check_memory
 
@@ -57,6 +58,7 @@ def input_info(source: PathLike, volume: Volume) -> dict:
     """The ``input`` entry of ``classes.json``: where the volume came from and its geometry."""
     is_phantom = is_phantom_input(source)
     values = volume.values
+    lazy = is_dask_array(values)  # its range would cost a pass over the volume: the design's own pass finds it
     return {
         "path": PHANTOM_INPUT if is_phantom else str(Path(source).resolve()),
         "name": volume.name,
@@ -66,6 +68,7 @@ def input_info(source: PathLike, volume: Volume) -> dict:
         "origin": [float(o) for o in volume.origin],
         "ijk_to_ras": volume.ijk_to_ras().tolist(),
         "dtype": str(values.dtype),
-        "value_min": float(np.min(values)) if values.size else None,
-        "value_max": float(np.max(values)) if values.size else None,
+        "value_min": float(np.min(values)) if values.size and not lazy else None,
+        "value_max": float(np.max(values)) if values.size and not lazy else None,
+        "read_lazily": lazy,
     }

@@ -110,6 +110,9 @@ def run(
     info = input_info(source, volume)
     for message in _input_warnings(info, n_bins):
         warning(message)
+    if render and info["read_lazily"]:
+        warning("the volume is larger than memory (read lazily): render.png, classes.png and the scene are skipped")
+        render, progress.total = False, len(STAGES) - 1
 
     design = design_transfer_function(volume.values, volume.spacing, progress=progress.design_callback, **options)
     timings.update(design.timings_s)
@@ -153,7 +156,8 @@ def _input_warnings(info: dict, n_bins: int) -> list[str]:
     """Warnings about the input that the design cannot fix: a label map, or a clustering that will take minutes."""
     warnings = []
     low, high = info["value_min"], info["value_max"]
-    if info["dtype"].startswith(("int", "uint")) and low < high <= low + LABEL_MAP_VALUES - 1:  # constant: an error
+    integers = low is not None and info["dtype"].startswith(("int", "uint"))  # no range of a volume read lazily
+    if integers and low < high <= low + LABEL_MAP_VALUES - 1:  # constant: an error
         warnings.append(
             f"the volume holds at most {int(high - low + 1)} distinct integer values ({low:g} to {high:g}): a label "
             "map? Isovalue similarity groups intensities of a continuous scan; label maps are better shown with "

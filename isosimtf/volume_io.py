@@ -8,6 +8,8 @@ Every reader returns a :class:`Volume`: the voxel values as a ``(K, J, I)`` arra
   what Slicer shows. A folder must hold one series; a DICOM file reads the series it belongs to.
 - ``.vti``: VTK's XML image reader; its coordinates are taken as RAS.
 - ``.npy``: its header is checked before the array is loaded (no pickles); spacing 1 mm, origin 0, no rotation.
+- Zarr and OME-Zarr stores, TIFF stacks, and raw NRRD / MetaImage too large for memory: read lazily as dask arrays
+  (:mod:`.chunked_readers`), designed out of core.
 - ``.inv3``: an InVesalius project (gzip tar holding ``main.plist`` and the raw int16 ``matrix.dat``), read here since
   no library reads it.
 
@@ -30,17 +32,21 @@ from typing import Optional, Union
 
 import numpy as np
 
+from IsoSimilarityTFLib.chunked import is_dask_array
 from IsoSimilarityTFLib.errors import VolumeReadError
 from IsoSimilarityTFLib.memory import check_memory
 
-from . import slicer_readers
+from . import chunked_readers, slicer_readers
 from .read_errors import cannot_read, captured_native_output, first_message
 
 PathLike = Union[str, "os.PathLike[str]"]
 
 __all__ = ["SUPPORTED_TEXT", "Volume", "VolumeReadError", "read_volume", "real_dataset_path"]
 
-SUPPORTED_TEXT = ".nrrd, .nhdr, .mha, .mhd, .nii, .nii.gz, .vti, .npy, .inv3, a DICOM file or a DICOM series folder"
+SUPPORTED_TEXT = (
+    ".nrrd, .nhdr, .mha, .mhd, .nii, .nii.gz, .vti, .npy, .inv3, .tif, .tiff, a Zarr store, a folder of TIFF planes, "
+    "a DICOM file or a DICOM series folder"
+)
 
 #: Largest expansion of a deflate (gzip, zlib) stream: a file of N bytes holds at most about 1032 N bytes of voxels.
 _MAX_DEFLATE_RATIO = 1032
@@ -82,7 +88,8 @@ class Volume:
     name: str = "volume"
 
     def __post_init__(self) -> None:
-        values = np.asarray(self.values)
+        # A dask array (a volume read lazily, see .chunked_readers) stays lazy.
+        values = self.values if is_dask_array(self.values) else np.asarray(self.values)
         if values.ndim != 3:
             raise ValueError(f"Volume values must be 3-D (k, j, i); got shape {values.shape}")
         directions = np.eye(3) if self.directions is None else np.array(self.directions, dtype=float)
@@ -131,6 +138,8 @@ def read_volume(path: PathLike, *, n_bins: Optional[int] = None) -> Volume:
     path = Path(path)
     if not path.exists():
         raise cannot_read(path, "no such file or directory")
+    if chunked_readers.reads_chunked(path, n_bins):
+        return chunked_readers.read_chunked(path)
     name = path.name if path.is_dir() else _stem(path)
     if path.is_dir() or slicer_readers.is_dicom_file(path):
         return _read_with_slicer(path, slicer_readers.dicom_series(path), name, n_bins)

@@ -1,0 +1,151 @@
+"""Volumes read lazily (Zarr, OME-Zarr, TIFF stacks, raw NRRD / MetaImage) give the values and geometry of the
+in-memory readers, and ``isosimtf`` designs them out of core exactly as it designs the same volume in memory."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from volume_writers import write_volume
+
+from IsoSimilarityTFLib import memory
+from IsoSimilarityTFLib.chunked import is_dask_array
+from isosimtf import chunked_readers, cli
+from isosimtf.volume_io import Volume, read_volume
+
+zarr = pytest.importorskip("zarr")
+tifffile = pytest.importorskip("tifffile")
+
+SHAPE = (11, 9, 13)  # (k, j, i)
+
+
+def volume_values(dtype=np.int16) -> np.ndarray:
+    rng = np.random.default_rng(3)
+    grid = np.indices(SHAPE).astype(float)
+    radius = np.sqrt(((grid - np.array([5, 4, 6])[:, None, None, None]) ** 2).sum(axis=0))
+    return (np.where(radius < 3.5, 900, np.where(radius < 5, 200, -800)) + rng.normal(0, 20, SHAPE)).astype(dtype)
+
+
+def geometry_volume(values: np.ndarray) -> Volume:
+    rotation = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    return Volume(values, (0.7, 1.3, 2.1), (-10.5, 20.25, 33.0), rotation, "v")
+
+
+@pytest.mark.parametrize("name", ["v.nrrd", "v.nhdr", "v.mha", "v.mhd"])
+@pytest.mark.parametrize("dtype", [np.int16, np.uint8, np.float32])
+def test_raw_nrrd_and_metaimage_are_mapped_with_slicers_geometry(tmp_path: Path, name, dtype) -> None:
+    volume = geometry_volume(volume_values(dtype))
+    path = tmp_path / name
+    write_volume(volume, path, compress=False)
+    expected = read_volume(path)  # Slicer's reader
+    lazy = chunked_readers.read_chunked(path)
+    assert is_dask_array(lazy.values)
+    np.testing.assert_array_equal(np.asarray(lazy.values), expected.values)
+    np.testing.assert_allclose(lazy.ijk_to_ras(), expected.ijk_to_ras(), atol=1e-6)
+
+
+def test_raw_chunks_are_whole_planes_of_bounded_size(tmp_path: Path, monkeypatch) -> None:
+    values = volume_values()
+    (tmp_path / "v.raw").write_bytes(values.astype(">i2").tobytes())
+    monkeypatch.setattr(chunked_readers, "RAW_CHUNK_BYTES", 3 * SHAPE[1] * SHAPE[2] * 2)
+    lazy = chunked_readers.raw_volume(tmp_path / "v.raw", SHAPE, np.dtype(">i2"))
+    assert lazy.chunks == ((3, 3, 3, 2), (9,), (13,))
+    np.testing.assert_array_equal(np.asarray(lazy), values)
+
+
+def test_compressed_files_are_not_mapped(tmp_path: Path) -> None:
+    write_volume(geometry_volume(volume_values()), tmp_path / "v.nrrd", compress=True)
+    assert chunked_readers.raw_layout(tmp_path / "v.nrrd") is None
+    assert not chunked_readers.reads_chunked(tmp_path / "v.nrrd", 256)
+    with pytest.raises(ValueError, match="not stored raw"):
+        chunked_readers.read_chunked(tmp_path / "v.nrrd")
+
+
+def test_raw_files_are_read_lazily_only_when_too_large_for_memory(tmp_path: Path, monkeypatch) -> None:
+    write_volume(geometry_volume(volume_values()), tmp_path / "v.nhdr", compress=False)
+    assert not is_dask_array(read_volume(tmp_path / "v.nhdr").values)
+    needed = memory.design_memory_bytes(SHAPE, 256) + 2 * np.prod(SHAPE)
+    monkeypatch.setattr(chunked_readers, "available_memory_bytes", lambda: 2 * needed - 2)
+    assert is_dask_array(read_volume(tmp_path / "v.nhdr").values)
+
+
+def test_zarr_array_and_ome_zarr_level_0(tmp_path: Path) -> None:
+    values = volume_values()
+    zarr.create_array(str(tmp_path / "plain.zarr"), data=values, chunks=(4, 9, 13))
+    lazy = read_volume(tmp_path / "plain.zarr")
+    assert is_dask_array(lazy.values) and lazy.spacing == (1.0, 1.0, 1.0)
+    np.testing.assert_array_equal(np.asarray(lazy.values), values)
+
+    group = zarr.open_group(str(tmp_path / "image.ome.zarr"), mode="w")
+    group.create_array("0", data=values[np.newaxis], chunks=(1, 4, 9, 13))
+    group.create_array("1", data=values[np.newaxis, ::2, ::2, ::2])
+    scale = [{"type": "scale", "scale": [1.0, 2.1, 1.3, 0.7]}]
+    group.attrs["multiscales"] = [
+        {
+            "version": "0.4",
+            "axes": [{"name": n} for n in "czyx"],
+            "datasets": [{"path": "0", "coordinateTransformations": scale}, {"path": "1"}],
+        }
+    ]
+    ome = read_volume(tmp_path / "image.ome.zarr")
+    np.testing.assert_array_equal(np.asarray(ome.values), values)
+    assert ome.spacing == (0.7, 1.3, 2.1)
+
+
+def test_tiff_file_and_folder_of_planes(tmp_path: Path) -> None:
+    values = volume_values(np.uint16)
+    tifffile.imwrite(tmp_path / "stack.tif", values)
+    np.testing.assert_array_equal(np.asarray(read_volume(tmp_path / "stack.tif").values), values)
+    (tmp_path / "planes").mkdir()
+    for k, plane in enumerate(values):
+        tifffile.imwrite(tmp_path / "planes" / f"z{k:03d}.tiff", plane)
+    lazy = read_volume(tmp_path / "planes")
+    assert is_dask_array(lazy.values)
+    np.testing.assert_array_equal(np.asarray(lazy.values), values)
+
+
+def _classes_json(outdir: Path) -> dict:
+    data = json.loads((outdir / "classes.json").read_text())
+    data.pop("timings_s")
+    data.pop("input")
+    return data
+
+
+def test_isosimtf_designs_a_zarr_volume_as_the_same_volume_in_memory(tmp_path: Path, capsys) -> None:
+    values = volume_values()
+    np.save(tmp_path / "v.npy", values)
+    zarr.create_array(str(tmp_path / "v.zarr"), data=values, chunks=(3, 5, 13))
+    assert cli.main([str(tmp_path / "v.npy"), "-o", str(tmp_path / "memory"), "--no-render", "-q"]) == 0
+    assert cli.main([str(tmp_path / "v.zarr"), "-o", str(tmp_path / "lazy"), "-q"]) == 0
+    assert "larger than memory (read lazily)" in capsys.readouterr().err  # rendering skipped, with a warning
+    assert _classes_json(tmp_path / "lazy") == _classes_json(tmp_path / "memory")
+    info = json.loads((tmp_path / "lazy" / "classes.json").read_text())["input"]
+    assert info["read_lazily"] and info["value_min"] is None
+    np.testing.assert_array_equal(
+        np.load(tmp_path / "lazy" / "similarity.npy"), np.load(tmp_path / "memory" / "similarity.npy")
+    )
+
+
+def test_isosimtf_on_a_distributed_cluster(tmp_path: Path) -> None:
+    """--scheduler: the chunks are read and quantized by a dask.distributed cluster (on loopback here)."""
+    distributed = pytest.importorskip("distributed")
+    values = volume_values()
+    zarr.create_array(str(tmp_path / "v.zarr"), data=values, chunks=(3, 5, 13))
+    assert cli.main([str(tmp_path / "v.zarr"), "-o", str(tmp_path / "local"), "--no-render", "-q"]) == 0
+    with distributed.LocalCluster(
+        n_workers=1, threads_per_worker=2, processes=False, protocol="tcp", host="127.0.0.1", dashboard_address=None
+    ) as cluster:
+        argv = [str(tmp_path / "v.zarr"), "-o", str(tmp_path / "cluster"), "--no-render", "-q"]
+        assert cli.main([*argv, "--scheduler", cluster.scheduler_address]) == 0
+        distributed.default_client().close()  # the command's client; its process would end here
+        ran = {str(entry[0]).split("-")[0] for entry in cluster.scheduler.transition_log}
+        assert any("from-zarr" in key or "getitem" in key for key in ran), ran  # the chunks were read there
+    assert _classes_json(tmp_path / "cluster") == _classes_json(tmp_path / "local")
+
+
+def test_unreachable_scheduler_is_a_usage_error(tmp_path: Path, capsys) -> None:
+    pytest.importorskip("distributed")
+    zarr.create_array(str(tmp_path / "v.zarr"), data=volume_values(), chunks=(3, 5, 13))
+    status = cli.main([str(tmp_path / "v.zarr"), "-o", str(tmp_path / "out"), "--no-render", "--scheduler",
+                       "tcp://127.0.0.1:9"])  # fmt: skip
+    assert status == cli.EXIT_USAGE and "no dask scheduler answers" in capsys.readouterr().err

@@ -1,0 +1,252 @@
+"""Volumes read lazily, as dask arrays: Zarr and OME-Zarr, TIFF stacks, and raw NRRD / MetaImage through a memory map.
+
+None of these readers loads the volume: each returns a :class:`~.volume_io.Volume` whose ``values`` are a
+``dask.array`` of shape ``(K, J, I)`` (slowest axis first), read a row of chunks at a time by the design
+(``IsoSimilarityTFLib.chunked``).
+
+- Zarr (a folder holding ``zarr.json``, ``.zarray`` or ``.zgroup``): an array, or an OME-Zarr image whose level 0
+  (full resolution) is read; its ``scale`` gives the spacing, in the store's own unit. Leading axes of one voxel (time,
+  channel) are dropped.
+- TIFF: a multi-page file (``.tif``, ``.tiff``) or a folder of single-plane TIFF files (sorted by name), one page per
+  plane along k, through ``tifffile``'s Zarr view; spacing 1.
+- NRRD (``.nrrd``, ``.nhdr``) and MetaImage (``.mha``, ``.mhd``) whose voxels are stored raw (uncompressed) in the
+  file after the header or in a detached data file: mapped into memory a few planes per chunk; geometry as Slicer
+  reads it (LPS headers turned to RAS).
+
+Which inputs are read this way (:func:`reads_chunked`): Zarr and TIFF always (the in-memory readers do not know
+them); raw NRRD / MetaImage when the in-memory design would need more than half of the memory available. Every other
+input, and a compressed NRRD / MetaImage of any size, is read into memory by :mod:`.volume_io`.
+
+Optional dependencies (the ``outofcore`` extra): ``dask[array]``, plus ``zarr`` and ``tifffile`` for their formats.
+"""
+
+import re
+from pathlib import Path
+from typing import Any, Optional
+
+import numpy as np
+
+from IsoSimilarityTFLib.memory import available_memory_bytes, design_memory_bytes
+
+from .read_errors import cannot_read
+
+#: Bytes of one chunk of a memory-mapped raw volume (whole planes): a row of chunks is one chunk, read in one go.
+RAW_CHUNK_BYTES = 64 << 20
+
+_TIFF_SUFFIXES = (".tif", ".tiff")
+_RAW_SUFFIXES = (".nrrd", ".nhdr", ".mha", ".mhd")
+_ZARR_MARKERS = ("zarr.json", ".zarray", ".zgroup")
+
+# NRRD types and MetaImage element types, as numpy kinds (byte order added from the header).
+_NRRD_TYPES = {
+    **dict.fromkeys(("signed char", "int8", "int8_t"), "i1"),
+    **dict.fromkeys(("uchar", "unsigned char", "uint8", "uint8_t"), "u1"),
+    **dict.fromkeys(("short", "short int", "signed short", "signed short int", "int16", "int16_t"), "i2"),
+    **dict.fromkeys(("ushort", "unsigned short", "unsigned short int", "uint16", "uint16_t"), "u2"),
+    **dict.fromkeys(("int", "signed int", "int32", "int32_t"), "i4"),
+    **dict.fromkeys(("uint", "unsigned int", "uint32", "uint32_t"), "u4"),
+    "float": "f4",
+    "double": "f8",
+}
+_MET_TYPES = {
+    "MET_CHAR": "i1", "MET_UCHAR": "u1", "MET_SHORT": "i2", "MET_USHORT": "u2", "MET_INT": "i4", "MET_UINT": "u4",
+    "MET_FLOAT": "f4", "MET_DOUBLE": "f8",
+}  # fmt: skip
+# LPS (NRRD's usual space, ITK's and so MetaImage's) to Slicer's RAS.
+_LPS_TO_RAS = np.diag([-1.0, -1.0, 1.0])
+
+
+def is_chunked_format(path: Path) -> bool:
+    """Whether ``path`` is a Zarr store or a TIFF stack: formats only this module reads."""
+    if path.is_dir():
+        return any((path / marker).exists() for marker in _ZARR_MARKERS) or bool(_tiff_files(path))
+    return path.name.lower().endswith(_TIFF_SUFFIXES)
+
+
+def reads_chunked(path: Path, n_bins: Optional[int]) -> bool:
+    """Whether ``path`` is read lazily: a Zarr or TIFF input, or a raw NRRD / MetaImage too large for memory.
+
+    Too large: the in-memory read and design (:func:`~IsoSimilarityTFLib.memory.design_memory_bytes` with the voxels
+    themselves) would need more than half the memory available; the other half stays for the rest of the machine.
+    """
+    if is_chunked_format(path):
+        return True
+    if not path.is_file() or not path.name.lower().endswith(_RAW_SUFFIXES):
+        return False
+    layout = raw_layout(path)
+    available = available_memory_bytes()
+    if layout is None or available is None:
+        return False
+    shape, dtype = layout[1], layout[2]
+    needed = int(np.prod(shape, dtype=np.float64)) * dtype.itemsize + design_memory_bytes(shape, n_bins or 256)
+    return needed > available // 2
+
+
+def read_chunked(path: Path) -> Any:
+    """Open ``path`` lazily (see the module docstring) as a :class:`~.volume_io.Volume` holding a dask array.
+
+    Raises:
+        VolumeReadError: not a format read here, a compressed raw file, or not a 3-D scalar volume.
+    """
+    from .volume_io import Volume
+
+    name = path.name.split(".")[0] or path.name
+    if path.is_dir() and any((path / marker).exists() for marker in _ZARR_MARKERS):
+        values, spacing = _zarr_volume(path)
+        return Volume(values, spacing, name=name)
+    if is_chunked_format(path):
+        return Volume(_tiff_volume(path), name=name)
+    layout = raw_layout(path)
+    if layout is None:
+        raise cannot_read(path, "its voxels are not stored raw (uncompressed): it cannot be mapped into memory")
+    data, shape, dtype, offset, ijk_to_ras = layout
+    return Volume.from_ijk_to_ras(raw_volume(data, shape, dtype, offset), ijk_to_ras, name)
+
+
+def raw_volume(data: Path, shape: tuple[int, int, int], dtype: np.dtype, offset: int = 0) -> Any:
+    """A raw volume file as a dask array of chunks of whole planes (about :data:`RAW_CHUNK_BYTES` each).
+
+    Each chunk maps the file anew and copies its planes out: the task graph holds the path, never the data, so it
+    also runs on a distributed cluster whose workers see the same file system.
+
+    Args:
+        data: the file; shape: ``(K, J, I)`` voxels, I fastest in the file; dtype: with its byte order; offset: bytes
+            before the first voxel.
+    """
+    import dask.array as da
+
+    plane_bytes = shape[1] * shape[2] * dtype.itemsize
+    planes = max(1, min(shape[0], RAW_CHUNK_BYTES // plane_bytes))
+    chunks = (tuple(min(planes, shape[0] - k) for k in range(0, shape[0], planes)), (shape[1],), (shape[2],))
+
+    def read(block_info=None) -> np.ndarray:
+        first, stop = block_info[None]["array-location"][0]
+        start = offset + first * plane_bytes
+        mapped = np.memmap(data, dtype=dtype, mode="r", offset=start, shape=(stop - first, *shape[1:]))
+        return np.array(mapped)  # a copy: the map is closed with the chunk
+
+    return da.map_blocks(read, chunks=chunks, dtype=dtype, meta=np.empty((0, 0, 0), dtype=dtype))
+
+
+def raw_layout(path: Path) -> Optional[tuple[Path, tuple[int, int, int], np.dtype, int, np.ndarray]]:
+    """Where and how a NRRD / MetaImage stores its voxels, when raw and scalar 3-D; else None.
+
+    Returns:
+        ``(data file, (K, J, I) shape, dtype with byte order, byte offset, 4x4 IJK-to-RAS matrix)``.
+    """
+    with open(path, "rb") as handle:
+        head = handle.read(1 << 16).decode("latin-1")
+    try:
+        if path.name.lower().endswith((".nrrd", ".nhdr")):
+            return _nrrd_layout(path, head)
+        return _mha_layout(path, head)
+    except (ValueError, TypeError):  # a malformed header: Slicer's reader says what is wrong with it
+        return None
+
+
+def _nrrd_layout(path: Path, head: str):
+    header, separator, _ = head.partition("\n\n")
+    fields = dict(_field(line, ":") for line in header.splitlines()[1:] if ":" in line and not line.startswith("#"))
+    sizes = [int(s) for s in fields.get("sizes", "").split()]
+    kind = _NRRD_TYPES.get(fields.get("type", ""))
+    detached = fields.get("data file")
+    if fields.get("encoding") != "raw" or kind is None or len(sizes) != 3 or (detached and " " in detached):
+        return None  # compressed, not scalar 3-D, or a list of data files
+    dtype = np.dtype(("<" if fields.get("endian", "little") == "little" else ">") + kind)
+    if detached:
+        data, offset = path.parent / detached, int(fields.get("byte skip", 0))
+    else:  # the voxels follow the blank line that ends the header
+        data, offset = path, len((header + separator).encode("latin-1"))
+    directions = re.findall(r"\(([^)]*)\)", fields.get("space directions", ""))
+    axes = np.array([[float(v) for v in d.split(",")] for d in directions]).T if len(directions) == 3 else np.eye(3)
+    origin = re.findall(r"[-+0-9.eE]+", fields.get("space origin", "")) or ["0", "0", "0"]
+    to_ras = _LPS_TO_RAS if fields.get("space", "left-posterior-superior").startswith("left-posterior") else np.eye(3)
+    return data, tuple(sizes[::-1]), dtype, offset, _ijk_to_ras(to_ras @ axes, to_ras @ np.array(origin, float))
+
+
+def _mha_layout(path: Path, head: str):
+    lines = head.split("\n")
+    fields, header_bytes = {}, 0
+    for line in lines:
+        header_bytes += len(line.encode("latin-1")) + 1
+        key, value = _field(line, "=")
+        fields[key] = value
+        if key == "ElementDataFile":
+            break
+    sizes = [int(s) for s in fields.get("DimSize", "").split()]
+    kind = _MET_TYPES.get(fields.get("ElementType", ""))
+    compressed = fields.get("CompressedData", "False").lower() == "true"
+    if compressed or kind is None or len(sizes) != 3 or int(fields.get("ElementNumberOfChannels", 1)) != 1:
+        return None
+    big = fields.get("ElementByteOrderMSB", fields.get("BinaryDataByteOrderMSB", "False")).lower() == "true"
+    dtype = np.dtype((">" if big else "<") + kind)
+    data_file = fields.get("ElementDataFile", "")
+    if data_file == "LOCAL":
+        data, offset = path, header_bytes
+    elif data_file and " " not in data_file and "%" not in data_file:
+        data, offset = path.parent / data_file, max(0, int(fields.get("HeaderSize", 0)))
+    else:
+        return None
+    spacing = np.array([float(s) for s in fields.get("ElementSpacing", "1 1 1").split()])
+    matrix = np.array([float(v) for v in fields.get("TransformMatrix", "1 0 0 0 1 0 0 0 1").split()]).reshape(3, 3).T
+    origin = np.array([float(v) for v in fields.get("Offset", fields.get("Origin", "0 0 0")).split()])
+    return data, tuple(sizes[::-1]), dtype, offset, _ijk_to_ras(_LPS_TO_RAS @ matrix * spacing, _LPS_TO_RAS @ origin)
+
+
+def _field(line: str, separator: str) -> tuple[str, str]:
+    key, _, value = line.partition(separator)
+    return key.strip(), value.strip()
+
+
+def _ijk_to_ras(axes: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    matrix = np.eye(4)
+    matrix[:3, :3], matrix[:3, 3] = axes, origin
+    return matrix
+
+
+def _zarr_volume(path: Path) -> tuple[Any, tuple[float, float, float]]:
+    """Level 0 of a Zarr array or OME-Zarr image as a 3-D dask array, with its spacing (x, y, z)."""
+    import dask.array as da
+    import zarr
+
+    node = zarr.open(str(path), mode="r")
+    scale = [1.0, 1.0, 1.0]
+    if isinstance(node, zarr.Group):
+        attrs = dict(node.attrs)
+        multiscales = attrs.get("multiscales") or attrs.get("ome", {}).get("multiscales")
+        if not multiscales:
+            raise cannot_read(path, "it is a Zarr group without OME-Zarr multiscales: name the array itself")
+        level = multiscales[0]["datasets"][0]
+        for transform in level.get("coordinateTransformations", []):
+            if transform.get("type") == "scale":
+                scale = [float(s) for s in transform["scale"]][-3:]
+        node = node[level["path"]]
+    values = da.from_zarr(node)
+    while values.ndim > 3 and values.shape[0] == 1:  # OME-Zarr's time and channel axes
+        values = values[0]
+    _check_3d(path, values.shape)
+    return values, (scale[2], scale[1], scale[0])
+
+
+def _tiff_files(folder: Path) -> list[Path]:
+    return sorted(p for p in folder.iterdir() if p.name.lower().endswith(_TIFF_SUFFIXES))
+
+
+def _tiff_volume(path: Path) -> Any:
+    """A multi-page TIFF file or a folder of TIFF planes as a 3-D dask array, one chunk per page."""
+    import dask.array as da
+    import tifffile
+    import zarr
+
+    if path.is_dir():
+        store = tifffile.TiffSequence(_tiff_files(path)).aszarr()
+    else:
+        store = tifffile.imread(path, aszarr=True)
+    values = da.from_zarr(zarr.open(store, mode="r"))
+    _check_3d(path, values.shape)
+    return values
+
+
+def _check_3d(path: Path, shape: tuple[int, ...]) -> None:
+    if len(shape) != 3 or min(shape) < 2:
+        raise cannot_read(path, f"it holds an array of shape {tuple(shape)}; a 3-D scalar volume is needed")
