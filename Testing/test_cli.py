@@ -700,3 +700,17 @@ def test_class_grid_layout_and_labels() -> None:
     assert formatting.format_ranges([[0.0, 1.0], [2.0, 3.0]], 1) == "0.0 .. 1.0, 2.0 .. 3.0"
     assert formatting.value_decimals((-1024.0, 3071.0), 256) == 0 and formatting.value_decimals((0.0, 1.0), 256) == 3
     assert formatting.color_hex([1.0, 0.5, 0.0]) == "#ff8000"
+
+
+def test_long_passes_show_a_progress_bar_on_a_terminal() -> None:
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    stream = Terminal()
+    printer = console.ProgressPrinter(3, stream=stream)
+    printer.design_callback("similarity", 0.0, "measuring")
+    printer.design_callback("similarity", 0.25, "similarity: unit cells")
+    assert stream.getvalue().endswith(
+        "similarity (hierarchical isosurface similarity): unit cells [#####...............]  25%"
+    )

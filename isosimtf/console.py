@@ -67,8 +67,14 @@ class ProgressPrinter:
             details = {"similarity": "(hierarchical isosurface similarity)", "clustering": "(affinity propagation)"}
             self.stage(stage, details.get(stage, ""))
         elif message:
-            self.update(message[len(stage) + 2 :] if message.startswith(f"{stage}: ") else message)
+            text = message[len(stage) + 2 :] if message.startswith(f"{stage}: ") else message
+            self.update(f"{text} {progress_bar(fraction)}" if 0.0 < fraction < 1.0 else text)
 
+
+def progress_bar(fraction: float, width: int = 20) -> str:
+    """``[#####...............]  25%``: the share of a long pass done, for a terminal line."""
+    filled = int(round(max(0.0, min(1.0, fraction)) * width))
+    return f"[{'#' * filled}{'.' * (width - filled)}] {fraction:4.0%}"
 
 
 def summary_text(result: "RunResult") -> str:

@@ -11,7 +11,7 @@ dask is an optional dependency, imported only when a dask array is given: the Sl
 """
 
 from collections.abc import Iterator
-from typing import Optional
+from typing import Callable, Optional
 
 import numpy as np
 
@@ -56,27 +56,26 @@ def voxel_slabs(volume, overlap: bool = True) -> Iterator[tuple[int, np.ndarray]
             del row  # let the row go before the next one is waited for
 
 
-def quantize_chunked(values, n_bins: int = 256, value_range: Optional[tuple[float, float]] = None) -> Quantization:
+def quantize_chunked(
+    values,
+    n_bins: int = 256,
+    value_range: Optional[tuple[float, float]] = None,
+    progress: Optional[Callable[[float, str], None]] = None,
+) -> Quantization:
     """:func:`~.quantize.quantize` of a dask volume: the value range is computed, the bins are a lazy dask array.
+
+    ``progress(fraction, message)`` is called as the pass over the volume for its range goes (raising from it aborts).
 
     Every chunk is quantized by :func:`~.quantize.quantize` with the whole volume's range (or the one given), which is
     what the in-memory quantization does, so the bins are the same.
     """
-    import dask
-    import dask.array as da
-
     from .options import OPTIONS  # the table imports the engine's modules, this one among them
 
     # The in-memory checks, before any pass over the data: the volume's on a zero-stride stand-in of its shape and
     # dtype (no memory).
     validate_volume(np.lib.stride_tricks.as_strided(np.zeros(1, dtype=values.dtype), values.shape, (0,) * values.ndim))
     n_bins = OPTIONS["n_bins"].check(n_bins)
-    checks = [values.min(), values.max()]
-    if np.issubdtype(values.dtype, np.floating):
-        checks.append(da.isfinite(values).all())
-    low, high, *finite = dask.compute(*checks)
-    if finite and not finite[0]:
-        raise ValueError("the volume has NaN or infinite voxels; replace or mask them first")
+    low, high = _value_bounds(values, progress)
     if value_range is None:
         if low == high:
             raise ValueError(f"the volume is constant (every voxel is {float(low):g}): there is nothing to classify")
@@ -88,6 +87,38 @@ def quantize_chunked(values, n_bins: int = 256, value_range: Optional[tuple[floa
     value_range = (float(value_range[0]), float(value_range[1]))
     bins = values.map_blocks(lambda block: bin_volume(block, n_bins, value_range), dtype=bins_dtype(n_bins))
     return Quantization(bins=bins, n_bins=n_bins, value_range=value_range)
+
+
+# Parts of the volume whose range is computed together: progress is reported after each (and each part holds several
+# rows of chunks, which the scheduler reads in parallel).
+_RANGE_PARTS = 20
+
+
+def _value_bounds(values, progress: Optional[Callable[[float, str], None]]) -> tuple[float, float]:
+    """Minimum and maximum of a dask volume, a few rows of chunks at a time (the reductions run where the chunks are
+    read: only two numbers per part come back).
+
+    Raises:
+        ValueError: the volume has NaN or infinite voxels.
+    """
+    import dask
+    import dask.array as da
+
+    planes = np.cumsum((0, *values.chunks[0]))
+    bounds = planes[np.unique(np.linspace(0, len(planes) - 1, _RANGE_PARTS + 1).round().astype(int))]
+    low, high = np.inf, -np.inf
+    for k, (first, stop) in enumerate(zip(bounds[:-1], bounds[1:])):
+        part = values[first:stop]
+        checks = [part.min(), part.max()]
+        if np.issubdtype(values.dtype, np.floating):
+            checks.append(da.isfinite(part).all())
+        part_low, part_high, *finite = dask.compute(*checks)
+        if finite and not finite[0]:
+            raise ValueError("the volume has NaN or infinite voxels; replace or mask them first")
+        low, high = min(low, part_low), max(high, part_high)
+        if progress is not None:
+            progress((k + 1) / (len(bounds) - 1), "quantize: value range")
+    return low, high
 
 
 def _merge_thin_chunks(chunks: tuple[int, ...]) -> tuple[int, ...]:

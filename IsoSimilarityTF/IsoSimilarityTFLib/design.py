@@ -468,7 +468,12 @@ def design_transfer_function(
             quantized = values
             opts["n_bins"], opts["value_range"] = quantized.n_bins, list(quantized.value_range)
         elif chunked:
-            quantized = quantize_chunked(values, opts["n_bins"], opts["value_range"])
+            quantized = quantize_chunked(
+                values,
+                opts["n_bins"],
+                opts["value_range"],
+                lambda fraction, message: report("quantize", fraction, message),
+            )
         else:
             quantized = quantize(values, opts["n_bins"], opts["value_range"])
 
