@@ -1,11 +1,15 @@
 """Volumes larger than memory: the design of a ``dask.array``, bit-identical to the in-memory engine.
 
-The volume is quantized chunk by chunk (lazily) and streamed to the engine as slabs of whole planes along axis 0, one
-row of chunks at a time, each with the first plane of the next one (the unit cells across the border need it: a
-one-voxel halo on the high side). The engine folds the slabs into the octree levels exactly across their borders
-(:class:`~.cells.OctreeBuilder`), so the similarity, the voxel counts and the classes are those of the whole volume
-held in memory. Memory: one row of chunks, plus the octree levels above the unit cells (a quarter of a byte per voxel
-at 256 bins).
+Two passes over the volume: its value range (reductions run where the chunks are read, a part at a time for
+progress), then the similarity's. In that one the volume is quantized chunk by chunk (lazily, with the whole volume's
+range) and streamed to the engine as slabs of whole planes along axis 0, one row of chunks at a time (computed by the
+scheduler while the engine works on the previous one), each with the last plane of the previous row (the unit cells
+across the border need it: a one-voxel halo). The engine folds the slabs into the octree levels exactly across their
+borders, each level holding only its unfinished row of hyper-cells (:class:`~.cells.OctreeBuilder`), and the same
+slabs give the voxel counts and the planes the background rule samples (:class:`SlabTap`), so the similarity, the
+voxel counts and the classes are those of the whole volume held in memory. Memory: about two rows of chunks (bins and
+source values), one plane of hyper-cells per level and the levels small enough to be gathered whole; nothing grows
+with the volume's depth.
 
 dask is an optional dependency, imported only when a dask array is given: the Slicer module never needs it.
 """
@@ -25,18 +29,20 @@ def is_dask_array(values: object) -> bool:
 
 
 def voxel_slabs(volume, overlap: bool = True) -> Iterator[tuple[int, np.ndarray]]:
-    """Consecutive slabs of a dask volume along axis 0, one row of chunks each, every chunk computed once.
+    """Consecutive slabs of a dask volume along axis 0, every chunk computed once.
 
-    The next row is computed (read and quantized, by dask's scheduler) while the caller works on the current slab, so
-    the reading overlaps the octree pass: about two rows of chunks are held at a time.
+    The next row of chunks is computed (read and quantized, by dask's scheduler) while the caller works on the current
+    one, so the reading overlaps the octree pass: about two rows of chunks are held at a time.
 
     Args:
         volume: 3-D dask array.
-        overlap: start each slab but the first with the last plane of the previous row (the unit cells across the
-            border need both planes: a one-voxel halo, taken from the row already read rather than read again).
+        overlap: the unit cells across the border of two rows need a plane of each (a one-voxel halo): before each row
+            but the first, yield the two planes of its border (the previous row's last plane, kept, and its first), so
+            that no row is read twice nor copied.
 
     Yields:
-        ``(first, slab)``: index of the slab's first plane and the slab as a numpy array.
+        ``(first, slab)``: index of the slab's first plane and the slab as a numpy array: each row of chunks, with the
+        border slabs between them when ``overlap``.
     """
     from concurrent.futures import ThreadPoolExecutor
 
@@ -49,9 +55,8 @@ def voxel_slabs(volume, overlap: bool = True) -> Iterator[tuple[int, np.ndarray]
             if k + 2 < len(starts):
                 pending = reader.submit(np.asarray, volume[starts[k + 1] : starts[k + 2]])
             if overlap and previous is not None:
-                yield first - 1, np.concatenate((previous, row))
-            else:
-                yield first, row
+                yield first - 1, np.concatenate((previous, row[:1]))
+            yield first, row
             previous = row[-1:].copy()
             del row  # let the row go before the next one is waited for
 
