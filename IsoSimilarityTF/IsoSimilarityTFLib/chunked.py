@@ -20,7 +20,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from .classes import contact_planes
-from .quantize import Quantization, bin_volume, bins_dtype, checked_value_range, validate_volume
+from .quantize import Quantization, bin_volume, bins_dtype, checked_value_range, count_bins, validate_volume
 
 
 def is_dask_array(values: object) -> bool:
@@ -155,7 +155,7 @@ class SlabTap:
 
     def __call__(self, first: int, slab: np.ndarray) -> None:
         new = slab[self._next - first :]  # the planes of the halo were counted with the previous slab
-        self.voxel_counts += np.bincount(new.reshape(-1), minlength=self.voxel_counts.size)
+        self.voxel_counts += count_bins(new, self.voxel_counts.size)
         for k in range(self._next, first + len(slab)):
             if k in self._kept:
                 self._planes[k] = slab[k - first].copy()

@@ -58,21 +58,26 @@ class Quantization:
         if not isinstance(self.bins, np.ndarray):  # a dask volume: one row of chunks at a time
             from .chunked import voxel_slabs
 
-            slabs = voxel_slabs(self.bins, overlap=False)
-            return sum(Quantization(slab, self.n_bins, self.value_range).voxel_counts() for _, slab in slabs)
-        flat = self.bins.reshape(-1)
-        if flat.dtype != np.uint8:
-            return _chunked_bincount(flat, self.n_bins)
-        # Two uint8 voxels read as one uint16 index: half as many to count. Each pair counts once for each of its
-        # two bins, whichever byte order the machine has.
-        pairs = _chunked_bincount(flat[: flat.size // 2 * 2].view(np.uint16), 1 << 16).reshape(256, 256)
-        counts = pairs.sum(axis=0) + pairs.sum(axis=1)
-        counts[flat[-1]] += flat.size % 2
-        return counts[: self.n_bins]
+            return sum(count_bins(slab, self.n_bins) for _, slab in voxel_slabs(self.bins, overlap=False))
+        return count_bins(self.bins, self.n_bins)
 
     def value_to_bin(self, values: np.ndarray) -> np.ndarray:
         """Bin index of each value (values outside ``value_range`` go to the first or last bin)."""
         return _bin_index(np.asarray(values, dtype=np.float64), self.value_range, self.n_bins)
+
+
+def count_bins(bins: np.ndarray, n_bins: int) -> np.ndarray:
+    """Voxels per bin of a numpy array of bins, shape ``(n_bins,)`` int64, in cache-sized chunks (``np.bincount``
+    makes a 64-bit copy of what it counts: never of the whole array)."""
+    flat = np.ascontiguousarray(bins).reshape(-1)
+    if flat.dtype != np.uint8:
+        return _chunked_bincount(flat, n_bins)
+    # Two uint8 voxels read as one uint16 index: half as many to count. Each pair counts once for each of its
+    # two bins, whichever byte order the machine has.
+    pairs = _chunked_bincount(flat[: flat.size // 2 * 2].view(np.uint16), 1 << 16).reshape(256, 256)
+    counts = pairs.sum(axis=0) + pairs.sum(axis=1)
+    counts[flat[-1]] += flat.size % 2
+    return counts[:n_bins]
 
 
 def _chunked_bincount(flat: np.ndarray, length: int) -> np.ndarray:
