@@ -38,6 +38,7 @@ import platform
 import re
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -62,6 +63,9 @@ TARGET_PEAK_512_INT16_MB = 1.5 * 1024
 TARGET_FLOOR_MULTIPLE = 2.2
 TARGET_PEAK_512_INT16_ISSUE12_MB = 700.0
 TARGET_PEAK_1024_OUT_OF_CORE_MB = 1024.0
+TARGET_PEAK_BEYOND_MEMORY_MB = 3072.0
+OUT_OF_CORE_ZARR = "out of core: 1024^3 uint16 Zarr (64x256x256 chunks)"
+OUT_OF_CORE_BIG = "beyond memory: 2048x2048x3200 uint16 raw NRRD (25 GiB)"
 # Cells per chunk tried for the floor; the fastest on this machine is the floor.
 FLOOR_CHUNK_CELLS = (1 << 17, 1 << 18, 1 << 19)
 
@@ -164,8 +168,6 @@ def _load_volume(cfg: dict) -> tuple[Any, tuple[float, float, float]]:
 def _dask_phantom(size: int) -> Any:
     """A volume larger than it needs to be in memory: the 512^3 int16 phantom in a raw file (written once to the temp
     folder), read lazily by dask in 32-plane chunks and tiled ``size // 512`` times along every axis."""
-    import tempfile
-
     import dask
     import dask.array as da
     import numpy as np
@@ -455,9 +457,55 @@ def _child_reference(cfg: dict) -> dict:
     }
 
 
+def _child_out_of_core(cfg: dict) -> dict:
+    """A volume on disk, written once if missing (the tiled phantom, see big_volumes.py), read lazily by isosimtf's
+    reader and designed once, end to end: time per stage and the process's peak RSS from start to end."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import big_volumes
+    import numpy as np
+
+    from IsoSimilarityTFLib import design_transfer_function
+    from isosimtf.chunked_readers import read_chunked
+
+    meter = PeakMeter()
+    path = Path(cfg["path"])
+    shape = tuple(cfg["shape"])
+    if not path.exists():
+        start = time.perf_counter()
+        (big_volumes.write_zarr if cfg["format"] == "zarr" else big_volumes.write_nhdr)(path, shape)
+        write_s = time.perf_counter() - start
+    else:
+        write_s = None
+    start_rss = meter.reset()
+    start = time.perf_counter()
+    volume = read_chunked(path)
+    design = design_transfer_function(volume.values, volume.spacing, **cfg.get("options", {}))
+    total = time.perf_counter() - start
+    return {
+        "config": cfg,
+        "shape": list(volume.shape),
+        "dtype": str(volume.values.dtype),
+        "voxels": int(np.prod(volume.shape, dtype=np.int64)),
+        "volume_gib": float(np.prod(volume.shape, dtype=np.float64)) * volume.values.dtype.itemsize / 2**30,
+        "chunks": [list(c[:2]) for c in volume.values.chunks],
+        "write_s": write_s,
+        "median_s": {**design.timings_s, "pipeline": total},
+        "process_peak_mb": meter.peak_mb(),
+        "rss_at_start_mb": start_rss,
+        "n_classes": design.clustering["n_classes"],
+        "converged": design.clustering["converged"],
+        "memory_method": meter.method,
+    }
+
+
 def _child_main(text: str) -> None:
     cfg = json.loads(text)
-    children = {"reference": _child_reference, "floor": _child_floor, "pipeline": _child_pipeline}
+    children = {
+        "reference": _child_reference,
+        "floor": _child_floor,
+        "pipeline": _child_pipeline,
+        "out_of_core": _child_out_of_core,
+    }
     result = children[cfg["kind"]](cfg)
     print(CHILD_MARK + json.dumps(result), flush=True)
 
@@ -525,7 +573,7 @@ def machine_description() -> dict:
     }
 
 
-def configurations(quick: bool) -> dict[str, list[dict]]:
+def configurations(quick: bool, data: Path | None = None, big: bool = False) -> dict[str, list[dict]]:
     """All benchmark cases, grouped by section."""
     rep_small, rep_large = (3, 1) if quick else (5, 3)
     phantom_sizes = (64, 128, 256) if quick else (64, 128, 256, 384, 512)
@@ -632,8 +680,31 @@ def configurations(quick: bool) -> dict[str, list[dict]]:
             "render": False,
             "repeat_load": False,
             "options": {"unconverged": "keep"},
-        }
+        },
     ]
+    data = data or Path(tempfile.gettempdir())
+    out_of_core.append(
+        {
+            "kind": "out_of_core",
+            "name": OUT_OF_CORE_ZARR,
+            "format": "zarr",
+            "path": str(data / "isosimtf-bench-1024-uint16.zarr"),
+            "shape": [1024, 1024, 1024],
+            "options": {"unconverged": "keep"},
+        }
+    )
+    if big:
+        out_of_core.append(
+            {
+                "kind": "out_of_core",
+                "name": OUT_OF_CORE_BIG,
+                "format": "nhdr",
+                "path": str(data / "isosimtf-bench-3200x2048x2048-uint16.nhdr"),
+                "shape": [3200, 2048, 2048],
+                "options": {"unconverged": "keep"},
+                "timeout_s": 3600.0,
+            }
+        )
     return {
         "floor": floor,
         "out_of_core": out_of_core,
@@ -786,6 +857,20 @@ def build_report(machine: dict, groups: dict[str, list[dict]], quick: bool, wall
                 "PASS" if peak <= TARGET_PEAK_512_INT16_ISSUE12_MB else "FAIL",
             ]
         )
+    for name, limit in (
+        (OUT_OF_CORE_ZARR, TARGET_PEAK_1024_OUT_OF_CORE_MB),
+        (OUT_OF_CORE_BIG, TARGET_PEAK_BEYOND_MEMORY_MB),
+    ):
+        case = _by_name(everything, name)
+        if case and "error" not in case:
+            verdicts12.append(
+                [
+                    f"{name}, designed end to end, process peak RSS",
+                    f"<= {limit:.0f} MB",
+                    f"{case['process_peak_mb']:.0f} MB in {_fmt_s(case['median_s']['pipeline'])}",
+                    "PASS" if case["process_peak_mb"] <= limit else "FAIL",
+                ]
+            )
     out_of_core = _by_name(everything, "out of core: 1024^3 int16 dask (raw file)")
     if out_of_core and "error" not in out_of_core:
         peak = out_of_core["process_peak_mb"]
@@ -1085,6 +1170,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="short run; writes bench-quick.md/.json")
     parser.add_argument("--out", type=Path, default=RESULTS, help="results folder (default benchmarks/results)")
     parser.add_argument("--only", default=None, help="comma-separated sections of the run")
+    parser.add_argument("--data", type=Path, default=None, help="folder of the out-of-core volumes (default: temp)")
+    parser.add_argument(
+        "--big", action="store_true", help="also design a 25 GiB volume (written to --data once: ~2 min, 26 GB)"
+    )
     parser.add_argument("--child", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child is not None:
@@ -1093,7 +1182,7 @@ def main(argv: list[str] | None = None) -> int:
 
     started = time.perf_counter()
     machine = machine_description()
-    groups = configurations(args.quick)
+    groups = configurations(args.quick, args.data, args.big)
     if args.only:
         keep = set(args.only.split(","))
         groups = {k: (v if k in keep else []) for k, v in groups.items()}
@@ -1101,7 +1190,7 @@ def main(argv: list[str] | None = None) -> int:
     log: Callable[[str], None] = lambda text: print(text, flush=True)  # noqa: E731
     for section, cfgs in groups.items():
         for cfg in cfgs:
-            timeout = 240.0 if cfg["kind"] == "reference" else 600.0
+            timeout = cfg.get("timeout_s", 240.0 if cfg["kind"] == "reference" else 600.0)
             log(f"[{time.perf_counter() - started:6.0f} s] {cfg['name']} ...")
             result = run_child(cfg, timeout)
             if "error" in result:
