@@ -4,6 +4,9 @@ Usage::
 
     .venv/bin/python benchmarks/bench.py            # full run (~6-9 min on 2 cores), writes benchmarks/results/bench.*
     .venv/bin/python benchmarks/bench.py --quick    # short run (~1-2 min), writes benchmarks/results/bench-quick.*
+    # Out of core only, with the 25 GiB volume (written once to --data: ~2 min, 26 GB of disk); the committed
+    # benchmarks/results/bench-outofcore.* are this run's bench.* renamed:
+    .venv/bin/python benchmarks/bench.py --only out_of_core --big --data /big/disk --out /tmp/bench-outofcore
 
 Method
 ------
@@ -12,6 +15,8 @@ Method
 * Times are ``time.perf_counter`` wall-clock seconds; the reported figure is the MEDIAN over the warm runs (>= 5 for
   volumes up to 256^3, >= 3 for 384^3 and 512^3). The first pipeline call of each child is run once before them and
   reported apart as "first call": it includes importing scikit-learn (~1 s) and first-touch page faults.
+* Out-of-core cases (``kind: out_of_core``) read the volume with ``isosimtf.chunked_readers`` (a dask array) and
+  design it once, end to end: their "process peak" is the child's ``VmHWM`` from just before the read to the end.
 * Stages: load (reading the file; for phantoms: generating it), quantize, similarity, clustering (affinity
   propagation), classes, tf (building the ``vtkVolumeProperty`` from the classes) and render (a 512x512 headless Slicer
   CPU ray-cast picture of the volume with the designed TF, new scene each time: volume copy + first render).
