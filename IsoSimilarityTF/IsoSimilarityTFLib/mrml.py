@@ -32,6 +32,8 @@ PROPERTY_ROLE = "IsoSimilarityTFVolumeProperty"
 LEGACY_DESIGN_ATTRIBUTE = "IsoSimilarityTF.Design"
 LEGACY_VOLUME_ROLE = "IsoSimilarityTFVolume"
 NODE_NAME_SUFFIX = "IsoSimilarityTF"
+#: Name of the segmentation representation the classes are exported as.
+BINARY_LABELMAP = "Binary labelmap"
 
 #: Answers of :func:`outside_change`.
 CHANGE_OTHER_NODE = "other-property-node"  # the volume rendering shows another property node
@@ -323,6 +325,32 @@ def segment_name(isovalue_class) -> str:
     return f"Class {isovalue_class.id + 1} ({ranges})"
 
 
+def ensure_segmentation_converters() -> None:
+    """Register Slicer's segmentation converter rules unless they already are.
+
+    A segmentation cannot even hold a binary labelmap without them (``AddSegment: Unable to construct empty
+    representation type 'Binary labelmap'``). In Slicer the Segmentations module registers them when it starts
+    (``vtkSlicerSegmentationsModuleLogic::RegisterNodes``); headless (``slicer-core``) nobody does. Registering them
+    here, as that method does, spares a caller from attaching a Segmentations module logic to the scene only for
+    this, and from detaching it afterwards, which logs "GetSubjectHierarchyNode: Invalid scene given"
+    (``SetMRMLSceneInternal(nullptr)`` asks for the subject hierarchy of no scene).
+    """
+    import slicer
+
+    factory = slicer.vtkSegmentationConverterFactory.GetInstance()
+    probe = factory.ConstructRepresentationObjectByRepresentation(BINARY_LABELMAP)
+    if probe is not None:
+        probe.UnRegister(None)  # created with a reference for the caller: the Python object now owns it
+        return
+    for rule in (
+        slicer.vtkBinaryLabelmapToClosedSurfaceConversionRule,
+        slicer.vtkClosedSurfaceToBinaryLabelmapConversionRule,
+        slicer.vtkClosedSurfaceToFractionalLabelmapConversionRule,
+        slicer.vtkFractionalLabelmapToClosedSurfaceConversionRule,
+    ):
+        factory.RegisterConverterRule(rule())
+
+
 def export_segmentation(volume_node, design: TransferFunctionDesign, which: str = "shown"):
     """A new ``vtkMRMLSegmentationNode`` with one segment per class of the design: its name, colour and voxels.
 
@@ -340,6 +368,7 @@ def export_segmentation(volume_node, design: TransferFunctionDesign, which: str 
     scene = volume_node.GetScene() if volume_node is not None else None
     if scene is None:
         raise ValueError("the volume is not in a scene (was the scene closed?)")
+    ensure_segmentation_converters()
     classes = _exported_classes(design, which)
     class_ids = class_label_volume(volume_node, design)
     label_of_class = np.zeros(len(design.classes), dtype=np.uint16)
