@@ -871,6 +871,7 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
             self.test_IsoSimilarityTF_restore,
             self.test_IsoSimilarityTF_outside_changes,
             self.test_IsoSimilarityTF_segments_and_preset,
+            self.test_IsoSimilarityTF_tissues,
             self.test_IsoSimilarityTF_run,
             self.test_IsoSimilarityTF_cancel,
             self.test_IsoSimilarityTF_widget,
@@ -952,6 +953,11 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
     def test_IsoSimilarityTF_segments_and_preset(self):
         self.delayDisplay("Classes as segments, the design as a preset")
         self._check("segments_and_preset")
+        self.delayDisplay("Test passed")
+
+    def test_IsoSimilarityTF_tissues(self):
+        self.delayDisplay("Tissues and their classes: Detail, edits and solo on both levels, stored in the scene")
+        self._check("tissues")
         self.delayDisplay("Test passed")
 
     def test_IsoSimilarityTF_run(self):
