@@ -29,7 +29,7 @@ from slicer.ScriptedLoadableModule import (
 from slicer.util import VTKObservationMixin
 
 from IsoSimilarityTFLib.options import OPTIONS
-from IsoSimilarityTFLib.session import AUTO_DETAIL, CLASS, TISSUE, DesignSession
+from IsoSimilarityTFLib.session import AUTO_DETAIL, CLASS, TISSUE, Cancelled, DesignSession
 
 #
 # IsoSimilarityTF
@@ -52,8 +52,9 @@ class IsoSimilarityTF(ScriptedLoadableModule):
             """
 Designs a multi-class transfer function for volume rendering automatically, from the volume alone.
 Isovalues whose isosurfaces cross the same cells of a hierarchical (octree) grid are similar; affinity propagation
-groups similar isovalues into classes without being told how many. Each class gets a colour and an opacity that you
-can change, hide, or show alone, without computing anything again.
+groups similar isovalues into classes without being told how many, and the classes are grouped into tissues (the
+Detail slider regroups them at once). Each tissue and each class gets a colour and an opacity that you can change,
+hide, or show alone, without computing anything again.
 See the <a href="https://github.com/isosimilaritytf/SlicerIsoSimilarityTF">project page</a> for documentation.
 """
         )
@@ -141,7 +142,13 @@ class IsoSimilarityTFParameterNode:
 COLUMN_NAME, COLUMN_COLOR, COLUMN_OPACITY, COLUMN_VISIBLE, COLUMN_SOLO, COLUMN_VOXELS, COLUMN_RANGE = range(7)
 
 # Share of the progress bar per stage of the engine (clustering gives no progress of its own).
-STAGE_PROGRESS = {"quantize": (0, 5), "similarity": (5, 60), "clustering": (60, 97), "classes": (97, 100)}
+STAGE_PROGRESS = {
+    "quantize": (0, 5),
+    "similarity": (5, 55),
+    "clustering": (55, 85),
+    "classes": (85, 90),
+    "tissues": (90, 100),
+}
 
 # How often the panel reads the progress of the design process, in milliseconds.
 POLL_INTERVAL_MS = 100
@@ -208,6 +215,9 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         # The design being computed: a child process (IsoSimilarityTFLib.worker) and the volume it is for.
         self._job = None
         self._jobVolume = None
+        # A design being computed in this process (small ones), and whether Cancel was pressed meanwhile.
+        self._inProcess = False
+        self._cancelRequested = False
         self._pollTimer = None
         # The volume whose design the classes table shows (the table is rebuilt when the input changes).
         self._shownVolume = None
@@ -218,7 +228,7 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
 
     @property
     def _running(self) -> bool:
-        return self._job is not None
+        return self._job is not None or self._inProcess
 
     def setup(self) -> None:
         ScriptedLoadableModuleWidget.setup(self)
@@ -369,7 +379,8 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
                     "The 3D view shows another transfer function than this design (changed in the Volume Rendering "
                     "module). Editing a class shows the design again, after asking."
                 )
-        self._onDetailChanged()
+        if self._parameterNode is not None:
+            self._onDetailChanged()
 
     # Active volume ---------------------------------------------------------------------------------------------------
     def _observeSelectionNode(self) -> None:
@@ -402,7 +413,9 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         activeVolume = self._activeVolume()
         self._followActiveVolume = node is None or activeVolume is None or node is activeVolume
 
-    # Apply: the design runs in a child process, polled by a timer, so Slicer stays responsive and Cancel is at once.
+    # Apply. A design expected to take less than about a second runs here, on the main thread, repainting and
+    # checking Cancel at each progress report; a longer one runs in a child process, polled by a timer, so Slicer stays
+    # responsive and Cancel is at once (the process costs about 3 s to start: see IsoSimilarityTFLib.session).
     def onApplyButton(self) -> None:
         if self._running or not self._parameterNode or not self._parameterNode.inputVolume:
             return
@@ -411,19 +424,56 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         if not self._ensureScikitLearn():
             self.ui.statusLabel.text = _("scikit-learn is needed to group the isovalues into classes.")
             return
-        with slicer.util.tryWithErrorDisplay(_("Failed to compute the transfer function."), waitCursor=True):
-            options = self.logic.designOptions(self._parameterNode)
-            from IsoSimilarityTFLib.session import fit_levels
+        options = self.logic.designOptions(self._parameterNode)
+        from IsoSimilarityTFLib.session import fit_levels
 
-            dimensions = volume.GetImageData().GetDimensions() if volume.GetImageData() else (0, 0, 0)
-            available = fit_levels(tuple(reversed(dimensions)), options)[1]
-            if available is not None:
-                logging.info(f"IsoSimilarityTF: {volume.GetName()} has {available} octree levels; using all of them")
-            self.addLog(_("Designing a transfer function for {name}...").format(name=volume.GetName()))
+        dimensions = volume.GetImageData().GetDimensions() if volume.GetImageData() else (0, 0, 0)
+        available = fit_levels(tuple(reversed(dimensions)), options)[1]
+        if available is not None:
+            logging.info(f"IsoSimilarityTF: {volume.GetName()} has {available} octree levels; using all of them")
+        self.addLog(_("Designing a transfer function for {name}...").format(name=volume.GetName()))
+        if self.logic.runs_in_process(volume, options):
+            self._runInProcess(volume, options)
+            return
+        with slicer.util.tryWithErrorDisplay(_("Failed to compute the transfer function."), waitCursor=True):
             self._job = self.logic.start(volume, options)
             self._jobVolume = volume
             self._setRunning(True)
             self._pollTimer.start()
+
+    def _runInProcess(self, volume, options: dict) -> None:
+        self._inProcess = True
+        self._cancelRequested = False
+        self._setRunning(True)
+
+        def progress(stage: str, fraction: float, message: str) -> None:
+            self._showProgress(stage, fraction, message)
+            slicer.app.processEvents()  # repaint, and let Cancel be pressed
+            if self._cancelRequested or volume.GetScene() is None:
+                raise Cancelled()
+
+        try:
+            with slicer.util.tryWithErrorDisplay(_("Failed to compute the transfer function."), waitCursor=True):
+                try:
+                    design = self.logic.run(volume, options, progress=progress)
+                except Cancelled:
+                    self.addLog(_("Cancelled."))
+                    return
+                self._showResult(volume, design)
+        finally:
+            self._inProcess = False
+            self._setRunning(False)
+
+    def _showProgress(self, stage: str, fraction: float, message: str) -> None:
+        low, high = STAGE_PROGRESS.get(stage, (0, 100))
+        self.ui.progressBar.value = round(low + (high - low) * min(max(fraction, 0.0), 1.0))
+        self.ui.progressBar.setFormat(f"{message} (%p%)")
+
+    def _showResult(self, volume, design) -> None:
+        self._shownVolume = volume
+        self._showDesign(design)
+        self.addLog(self.logic.summaryText(design))
+        logging.info(f"IsoSimilarityTF timings for {volume.GetName()}: {self.logic.timingsText(design)}")
 
     def _pollJob(self) -> None:
         job = self._job
@@ -431,10 +481,8 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             self._pollTimer.stop()
             return
         finished = not job.running
-        for stage, fraction, message in job.poll():
-            low, high = STAGE_PROGRESS.get(stage, (0, 100))
-            self.ui.progressBar.value = round(low + (high - low) * min(max(fraction, 0.0), 1.0))
-            self.ui.progressBar.setFormat(f"{message} (%p%)")
+        for report in job.poll():
+            self._showProgress(*report)
         if not finished:
             return
         self._pollTimer.stop()
@@ -445,21 +493,23 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
                 if volume.GetScene() is None:
                     job.close()
                     raise RuntimeError(_("The input volume was removed from the scene."))
-                design = self.logic.finish(volume, job)
-                self._shownVolume = volume
-                self._showDesign(design)
-                self.addLog(self.logic.summaryText(design))
-                logging.info(f"IsoSimilarityTF timings for {volume.GetName()}: {self.logic.timingsText(design)}")
+                self._showResult(volume, self.logic.finish(volume, job))
         finally:
             self._setRunning(False)
 
     def onCancelButton(self) -> None:
+        if self._inProcess:  # the design stops at its next progress report, which then says so
+            self._cancelRequested = True
+            self.ui.cancelButton.enabled = False
+            return
         self._stopJob()
         self._setRunning(False)
         self.addLog(_("Cancelled."))
 
     def _stopJob(self) -> None:
-        """Kill the design process, if any, and forget it (takes effect at once, at any stage)."""
+        """Kill the design process, if any, and forget it (takes effect at once, at any stage); a design in this
+        process stops at its next progress report."""
+        self._cancelRequested = True
         if self._pollTimer is not None:
             self._pollTimer.stop()
         if self._job is not None:

@@ -312,6 +312,15 @@ def check_run(new_session, add_volume: AddVolume) -> None:
     _case.assertFalse(os.path.exists(job.folder))
     _case.assertEqual(again.to_dict()["classes"], design.to_dict()["classes"])
     _case.assertEqual(reports[-1][0], STAGES[-1])
+    # The Detail setting (the panel's "tissues"): a count past the volume's classes is one tissue per class.
+    grouped = session.run(volume, {**options, "tissues": 1})
+    _case.assertEqual((grouped.n_tissues, session.detail()), (1, 1))
+    job = session.start(volume, {**options, "tissues": 999})
+    job.wait(timeout=300)
+    every = session.finish(volume, job)
+    _case.assertEqual(every.options["tissues"], "all")
+    _case.assertEqual(every.n_tissues, every.hierarchy.max_tissues)
+    _case.assertEqual(mrml.design_of_volume(volume).options["tissues"], "all")
 
 
 class _Cancelled(Exception):

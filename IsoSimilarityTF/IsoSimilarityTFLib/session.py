@@ -12,6 +12,7 @@ from typing import Optional, Union
 from . import mrml
 from .cells import octree_levels
 from .design import TransferFunctionDesign, design_transfer_function
+from .options import check_options
 from .worker import DesignProcess
 
 # Similarity matrices kept for volumes designed in this session (4096 bins: 128 MB each).
@@ -166,6 +167,60 @@ def design_rows(design: TransferFunctionDesign) -> list:
     return rows
 
 
+class Cancelled(Exception):
+    """Raised by a progress callback to stop a design computed in this process (see :meth:`DesignSession.run`)."""
+
+
+# Where an Apply runs -------------------------------------------------------------------------------------------------
+# In Slicer, a design in a child process (:mod:`.worker`) costs the start of PythonSlicer and the imports of numpy and
+# scikit-learn, about 3 s, on every Apply; in Slicer's own process the design runs on the main thread, which repaints
+# and honours Cancel only between progress reports. So a design runs in-process when it is expected to take less than
+# about a second, and in a child process otherwise. The cost model (seconds), measured with benchmarks/apply_cost.py
+# on a 2-core Xeon (numpy 2, scikit-learn 1.7; see docs/apply-cost.md):
+#: Quantization, similarity and classes: one pass each over the voxels (5.4 ns of them the similarity's cells).
+COST_PER_VOXEL_S = 12e-9
+#: Per octree level, the cumulative sums over the n_bins x n_bins overlap table.
+COST_PER_LEVEL_BIN2_S = 40e-9
+#: One affinity propagation iteration over the n_bins x n_bins similarity (scikit-learn).
+COST_PER_ITERATION_BIN2_S = 7e-9
+#: Tissues (the intensity model fitted to the histogram, 1 to 8 tissues) and showing the design.
+COST_FIXED_S = 0.25
+COST_TISSUES_PER_BIN2_S = 0.2e-6
+#: Expected seconds under which a design runs in Slicer's process.
+IN_PROCESS_BUDGET_S = 1.0
+
+
+def estimate_seconds(shape, options: Optional[dict] = None) -> float:
+    """Expected seconds to design a volume of ``shape`` (voxels per axis) with ``options``, in this process.
+
+    Affinity propagation is counted as running to its iteration limit once (it usually converges sooner: 40 to 360
+    iterations were measured at 128 to 1024 bins; a retry with more damping, ``unconverged="raise-damping"``, can
+    add to it).
+    """
+    opts = check_options({k: v for k, v in (options or {}).items() if k != "tissues"})
+    n_bins = opts["n_bins"]
+    voxels = 1
+    for n in shape:
+        voxels *= int(n)
+    cells = tuple(max(int(n) - 1, 1) for n in shape)
+    levels = len(octree_levels(cells))
+    if opts["levels"]:
+        levels = min(levels, opts["levels"])
+    bins2 = float(n_bins) ** 2
+    return (
+        COST_FIXED_S
+        + voxels * COST_PER_VOXEL_S
+        + levels * bins2 * COST_PER_LEVEL_BIN2_S
+        + opts["max_iter"] * bins2 * COST_PER_ITERATION_BIN2_S
+        + bins2 * COST_TISSUES_PER_BIN2_S
+    )
+
+
+def runs_in_process(shape, options: Optional[dict] = None, budget_s: float = IN_PROCESS_BUDGET_S) -> bool:
+    """Whether a design is cheap enough to compute in Slicer's own process (see :func:`estimate_seconds`)."""
+    return estimate_seconds(shape, options) <= budget_s
+
+
 class DesignSession:
     """The current volume, its design and its property node; edits rewrite the transfer function in place.
 
@@ -202,6 +257,14 @@ class DesignSession:
             regroup_design(design, detail)
         self.apply(volume_node, design)
         return design
+
+    def runs_in_process(self, volume_node, options: Optional[dict] = None) -> bool:
+        """Whether :meth:`run` (in this process) should design the volume, rather than :meth:`start` (a child
+        process): see :func:`runs_in_process`."""
+        image = volume_node.GetImageData() if volume_node is not None else None
+        if image is None:
+            return True  # nothing to compute: run() reports the error at once
+        return runs_in_process(tuple(reversed(image.GetDimensions())), options)
 
     def start(self, volume_node, options: Optional[dict] = None) -> DesignProcess:
         """Start designing in a child process (see :mod:`.worker`); give the job to :meth:`finish` when it ends."""
