@@ -635,9 +635,10 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         if self._confirmOverwrite():
             with slicer.util.tryWithErrorDisplay(_("Failed to regroup the classes.")):
                 self.logic.regroup(detail)
-        else:  # the user keeps the other transfer function: the slider goes back to the design's grouping
-            self._detailShown = self.logic.detail()
-            self._parameterNode.tissues = self._detailShown
+        # The design's own setting: a count past its classes becomes its class count; if the user kept the other
+        # transfer function, the slider goes back to the design's grouping.
+        self._detailShown = self.logic.detail()
+        self._parameterNode.tissues = self._detailShown
         self._fillTree(design)
         self._updateDetailLabel()
 
@@ -669,7 +670,11 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
 
     def _addRow(self, tree, parentItem, row):
         """One item of the tree: a tissue (top level) or a class (inside its tissue), with its editing widgets."""
-        item = qt.QTreeWidgetItem(tree) if parentItem is None else qt.QTreeWidgetItem(parentItem)
+        item = qt.QTreeWidgetItem()
+        if parentItem is None:  # the tree, or the tissue's item, owns the item (and then the widgets set on it)
+            tree.addTopLevelItem(item)
+        else:
+            parentItem.addChild(item)
         item.setText(COLUMN_NAME, self.rowName(row))
         if row.level == TISSUE:
             item.setToolTip(
