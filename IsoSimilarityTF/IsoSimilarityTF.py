@@ -617,12 +617,15 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
     def detailText(detail: int, design) -> str:
         """What a Detail setting means, for the label beside the slider."""
         if design is None:
-            return _("Automatic") if detail == AUTO_DETAIL else _("{count} tissues").format(count=detail)
+            if detail == AUTO_DETAIL:
+                return _("Automatic")
+            return _("1 tissue") if detail == 1 else _("{count} tissues").format(count=detail)
+        count = design.n_tissues
         if detail == AUTO_DETAIL:
-            return _("Automatic: {count} tissues").format(count=design.n_tissues)
+            return _("Automatic: 1 tissue") if count == 1 else _("Automatic: {count} tissues").format(count=count)
         if detail >= design.hierarchy.max_tissues:
-            return _("One per class: {count} (thesis)").format(count=design.n_tissues)
-        return _("{count} tissues").format(count=design.n_tissues)
+            return _("One per class: {count} (thesis)").format(count=count)
+        return _("1 tissue") if count == 1 else _("{count} tissues").format(count=count)
 
     def _onDetailChanged(self) -> None:
         """The parameter node's Detail changed (the slider, a script): regroup the shown design at once."""
