@@ -423,7 +423,11 @@ def export_segmentation(volume_node, design: TransferFunctionDesign, which: str 
     segmentation = segmentation_node.GetSegmentation()
     segment_ids = vtkStringArray()
     for segment_id, segment_name_, color, _ in segments:
-        segment_ids.InsertNextValue(segmentation.AddEmptySegment(segment_id, segment_name_, [float(c) for c in color]))
+        color = [float(c) for c in color]
+        added = segmentation.AddEmptySegment(segment_id, segment_name_, color)
+        # AddEmptySegment takes grey (0.5, 0.5, 0.5), vtkSegment's "no colour", for a request to pick one.
+        segmentation.GetSegment(added).SetColor(*color)
+        segment_ids.InsertNextValue(added)
     if segments and not slicer.vtkSlicerSegmentationsModuleLogic.ImportLabelmapToSegmentationNode(
         labelmap, segmentation_node, segment_ids
     ):
