@@ -701,10 +701,10 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         item.setText(COLUMN_RANGE, ranges)
         item.setToolTip(COLUMN_RANGE, _("Intensity range(s), in the volume's units: {ranges}").format(ranges=ranges))
 
-        what = _("tissue") if row.level == TISSUE else _("class")
+        tissue = row.level == TISSUE
         colorButton = ctk.ctkColorPickerButton()
         colorButton.displayColorName = False
-        colorButton.toolTip = _("Colour of the {what}").format(what=what)
+        colorButton.toolTip = _("Colour of the tissue (all its classes)") if tissue else _("Colour of the class")
         colorButton.connect("colorChanged(QColor)", functools.partial(self.onRowColorChanged, row.level, row.id))
         tree.setItemWidget(item, COLUMN_COLOR, colorButton)
 
@@ -715,14 +715,14 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         tree.setItemWidget(item, COLUMN_OPACITY, opacitySlider)
 
         visibleCheckBox = qt.QCheckBox()
-        visibleCheckBox.toolTip = _("Show this {what}").format(what=what)
+        visibleCheckBox.toolTip = _("Show this tissue (all its classes)") if tissue else _("Show this class")
         # stateChanged, not toggled: from partly shown (a tissue some of whose classes are hidden) to shown, the
         # checked property stays true.
         visibleCheckBox.connect("stateChanged(int)", functools.partial(self.onRowVisibleChanged, row.level, row.id))
         tree.setItemWidget(item, COLUMN_VISIBLE, visibleCheckBox)
 
         soloCheckBox = qt.QCheckBox()
-        soloCheckBox.toolTip = _("Show this {what} alone").format(what=what)
+        soloCheckBox.toolTip = _("Show this tissue alone") if tissue else _("Show this class alone")
         soloCheckBox.connect("toggled(bool)", functools.partial(self.onRowSoloToggled, row.level, row.id))
         tree.setItemWidget(item, COLUMN_SOLO, soloCheckBox)
 
