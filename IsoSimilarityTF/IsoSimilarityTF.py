@@ -454,6 +454,11 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
 
         try:
             with slicer.util.tryWithErrorDisplay(_("Failed to compute the transfer function."), waitCursor=True):
+                if "sklearn.cluster" not in sys.modules:
+                    # Imported once per session (about a second, without repaint): said before, not mid-way.
+                    self.ui.progressBar.setFormat(_("Loading scikit-learn..."))
+                    slicer.app.processEvents()
+                    import sklearn.cluster  # noqa: F401
                 try:
                     design = self.logic.run(volume, options, progress=progress)
                 except Cancelled:
