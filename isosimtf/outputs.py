@@ -197,29 +197,20 @@ def render_outputs(
 
 def write_segmentation(result: RunResult, headless, volume_node) -> None:
     """classes.seg.nrrd: one segment per shown class, with its name, colour and voxels (Slicer opens it as a
-    segmentation). The segmentation is not left in the scene saved afterwards."""
-    import slicer
+    segmentation). The segmentation is not left in the scene saved afterwards.
 
+    No Segmentations module logic is attached to the scene: ``export_segmentation`` registers the converter rules it
+    needs, and detaching such a logic afterwards logs a VTK warning ("Invalid scene given")."""
     from IsoSimilarityTFLib.mrml import export_segmentation
 
-    from .rendering import captured_vtk_messages
-
-    segmentations = slicer.vtkSlicerSegmentationsModuleLogic()  # registers the segmentation converters, as Slicer does
-    segmentations.SetMRMLApplicationLogic(headless.app_logic)
-    segmentations.SetMRMLScene(headless.scene)
     path = result.outdir / OUTPUT_FILES["segmentation"]
-    try:
-        node = export_segmentation(volume_node, result.design)
-        storage = headless.scene.AddNewNodeByClass("vtkMRMLSegmentationStorageNode")
-        storage.SetFileName(str(path))
-        written = storage.WriteData(node)
-        for added in (storage, node.GetDisplayNode(), node):
-            if added is not None:
-                headless.scene.RemoveNode(added)
-    finally:
-        # Detaching the logic makes the subject hierarchy warn "Invalid scene given" on stderr: nothing to report.
-        with captured_vtk_messages():
-            segmentations.SetMRMLScene(None)
+    node = export_segmentation(volume_node, result.design)
+    storage = headless.scene.AddNewNodeByClass("vtkMRMLSegmentationStorageNode")
+    storage.SetFileName(str(path))
+    written = storage.WriteData(node)
+    for added in (storage, node.GetDisplayNode(), node):
+        if added is not None:
+            headless.scene.RemoveNode(added)
     if not written:
         raise RenderError(f"Slicer could not write '{path}'")
     result.files["segmentation"] = path

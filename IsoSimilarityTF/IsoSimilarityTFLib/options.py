@@ -124,7 +124,8 @@ OPTIONS: dict[str, Option] = {
         Option("unconverged", "raise-damping", "choice", "what to do when affinity propagation does not converge",
                "--unconverged", choices=UNCONVERGED_RULES),
         Option("tissues", "auto", "choice-or-int", "tissues the classes are grouped into: auto, all (one per class, "
-               "the thesis) or a count", "--tissues", choices=("auto", "all"), minimum=1, metavar="auto|all|N"),
+               "the thesis) or a count", "--tissues", choices=("auto", "all"), minimum=1, maximum=MAX_BINS,
+               metavar="auto|all|N"),
         Option("colors", "ramp", "choice", "tissue colours: an intensity-ordered ramp (dark red, tan, ivory, white) "
                "or a distinct qualitative palette", "--colors", choices=COLOR_SCHEMES),
         Option("modality", None, "choice", "kind of volume, which sets the opacity curve", "--modality",
