@@ -112,19 +112,12 @@ def test_uint8_volume(slicer_app):
 
 
 def test_scene_saved_and_reopened_keeps_tf_and_design(tmp_path, slicer_app, phantom, phantom_design):
-    from isosimtf.rendering import HeadlessSlicer
-
     volume = add_phantom(slicer_app, phantom)
     design = type(phantom_design).from_json(phantom_design.to_json())
     design.set_class(design.classes[-1].id, color=(0.25, 0.5, 0.75))
     apply_design(volume, design, slicer_app.volume_rendering_logic)
-    bundle = tmp_path / "bundle"
-    bundle.mkdir()
-    assert slicer_app.scene.SaveSceneToSlicerDataBundleDirectory(str(bundle))
 
-    with HeadlessSlicer(size=(64, 64)) as reopened:
-        reopened.scene.SetURL(str(bundle / "bundle.mrml"))
-        assert reopened.scene.Connect() == 1
+    def check(reopened):
         volume_back = reopened.scene.GetFirstNodeByName("Head")
         node = design_node_of(volume_back)
         assert node is not None and mrml.design_text_node(volume_back) is not None
@@ -134,6 +127,8 @@ def test_scene_saved_and_reopened_keeps_tf_and_design(tmp_path, slicer_app, phan
         restored = design_of(node)
         assert restored.to_dict()["classes"] == design.to_dict()["classes"]
         assert_node_shows(node, restored)
+
+    save_and_reopen(slicer_app.scene, tmp_path / "bundle", check)
 
 
 def test_closing_the_scene_mid_way_gives_a_clear_error(slicer_app, phantom, phantom_design):
@@ -445,7 +440,6 @@ def test_a_preset_applies_to_another_volume(slicer_app, phantom, phantom_design)
 # Tissues -----------------------------------------------------------------------------------------------------------
 def test_scene_saved_and_reopened_keeps_the_grouping_and_tissue_edits(tmp_path, slicer_app, phantom, phantom_design):
     from IsoSimilarityTFLib.session import TISSUE, DesignSession
-    from isosimtf.rendering import HeadlessSlicer
 
     volume = add_phantom(slicer_app, phantom)
     session = DesignSession(slicer_app.volume_rendering_logic)
@@ -454,13 +448,8 @@ def test_scene_saved_and_reopened_keeps_the_grouping_and_tissue_edits(tmp_path, 
     tissue = next(t for t in session.design.tissues if not t.background)
     session.edit(TISSUE, tissue.id, color=(0.1, 0.2, 0.3), opacity=0.3)
     session.solo(TISSUE, tissue.id)
-    bundle = tmp_path / "bundle"
-    bundle.mkdir()
-    assert slicer_app.scene.SaveSceneToSlicerDataBundleDirectory(str(bundle))
 
-    with HeadlessSlicer(size=(64, 64)) as reopened:
-        reopened.scene.SetURL(str(bundle / "bundle.mrml"))
-        assert reopened.scene.Connect() == 1
+    def check(reopened):
         volume_back = reopened.scene.GetFirstNodeByName("Head")
         other = DesignSession(reopened.volume_rendering_logic)
         restored = other.restore(volume_back)
@@ -469,6 +458,8 @@ def test_scene_saved_and_reopened_keeps_the_grouping_and_tissue_edits(tmp_path, 
         assert other.rows() == session.rows()
         assert not mrml.modified_outside(volume_back)
         assert_node_shows(other.property_node, restored)
+
+    save_and_reopen(slicer_app.scene, tmp_path / "bundle", check)
 
 
 def tissue_lookup(design, which="shown"):
