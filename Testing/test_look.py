@@ -5,7 +5,7 @@ import pytest
 
 from IsoSimilarityTFLib import design_transfer_function
 from IsoSimilarityTFLib.classes import IsovalueClass
-from IsoSimilarityTFLib.look import RAMP, default_look, detect_kind, ramp_colors
+from IsoSimilarityTFLib.look import RAMP, default_look, detect_kind, gradient_ramp_top, ramp_colors
 
 
 def make_classes(voxels, contact=None, background=0):
@@ -103,3 +103,17 @@ def test_modality_option_chooses_the_curve():
     values = np.where(np.indices((20, 20, 20)).sum(axis=0) > 25, 1000, 100) + rng.normal(0, 10, (20, 20, 20))
     assert design_transfer_function(values).kind == "mr"
     assert design_transfer_function(values, modality="CT").kind == "ct"
+
+
+def test_gradient_opacity_is_an_option_off_by_default():
+    values = np.zeros((16, 16, 16), dtype=np.int16) - 1000
+    values[4:12, 4:12, 4:12] = 40
+    values[6:10, 6:10, 6:10] = 1000
+    off = design_transfer_function(values, (1.0, 1.0, 1.0))
+    gradient = off.volume_property().GetGradientOpacity()
+    assert off.gradient_ramp_top is None and gradient.GetValue(0.0) == gradient.GetValue(500.0) == 1.0
+    on = design_transfer_function(values, (1.0, 1.0, 1.0), gradient_opacity=True)
+    top = on.gradient_ramp_top
+    gradient = on.volume_property().GetGradientOpacity()
+    assert top > 0 and gradient.GetValue(0.0) == 0.0 and gradient.GetValue(top) == pytest.approx(1.0)
+    assert gradient_ramp_top([0.0, 100.0, 300.0]) == pytest.approx(75.0)  # median contrast 150 over 2 mm

@@ -11,7 +11,7 @@ import numpy as np
 
 from .classes import IsovalueClass, build_classes, runs
 from .clustering import ClusteringError, cluster_isovalues
-from .look import COLOR_SCHEMES, class_mean_values, default_look, detect_kind
+from .look import COLOR_SCHEMES, class_mean_values, default_look, detect_kind, gradient_ramp_top
 from .memory import check_memory
 from .quantize import Quantization, quantize
 from .similarity import isovalue_similarity
@@ -43,6 +43,7 @@ DEFAULT_OPTIONS = {
     "tissues": "auto",
     "colors": "ramp",
     "modality": None,
+    "gradient_opacity": False,
 }
 
 UNCONVERGED_RULES = ("raise-damping", "error", "keep")
@@ -308,9 +309,22 @@ class TransferFunctionDesign:
         """Scalar opacity unit distance in mm: 1, so opacity is per millimetre whatever the voxel spacing."""
         return UNIT_DISTANCE_MM
 
+    @property
+    def gradient_ramp_top(self) -> Optional[float]:
+        """With option ``gradient_opacity``: the gradient (volume units per mm) from which gradient opacity is 1
+        (see :func:`.look.gradient_ramp_top`, from the shown tissues); None when the option is off."""
+        if not self.options.get("gradient_opacity", False):
+            return None
+        values = class_mean_values(self.labels, self.bin_voxels, self.edges, len(self.classes))
+        shown = [t for t in self.tissues if t.visible and not t.background]
+        means = [
+            np.average(values[t.classes], weights=[max(self.classes[c].voxels, 1) for c in t.classes]) for t in shown
+        ]
+        return gradient_ramp_top(means)
+
     def volume_property(self):
         """A new ``vtkVolumeProperty`` showing this design."""
-        return new_volume_property(self.transfer_function(), self.unit_distance)
+        return new_volume_property(self.transfer_function(), self.unit_distance, self.gradient_ramp_top)
 
     def update_volume_property(self, volume_property) -> None:
         """Rewrite the colour and opacity functions of an existing ``vtkVolumeProperty`` in place."""
@@ -456,7 +470,8 @@ def design_transfer_function(
             tissue per class: the thesis' classes) or a number of non-background tissues; :meth:`regroup` changes
             it later without recomputing anything. ``colors``: ``"ramp"`` (one intensity-ordered colour per tissue)
             or ``"distinct"`` (the qualitative palette). ``modality``: ``"CT"``, ``"MR"`` or None to detect the
-            kind of volume from its dtype and value range (see :func:`.look.detect_kind`).
+            kind of volume from its dtype and value range (see :func:`.look.detect_kind`). ``gradient_opacity``:
+            True to fade homogeneous insides by a gradient-opacity ramp (see :func:`.look.gradient_ramp_top`).
 
     Raises:
         ValueError: bad volume or option. ClusteringError: affinity propagation gave no usable grouping.

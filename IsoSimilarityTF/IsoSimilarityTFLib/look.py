@@ -13,6 +13,9 @@ What Slicer's presets do, and why we do it too (the presets are read to learn fr
   moderate ramp in intensity order that peaks at the main bright tissue (not the brightest one: on a T1 head the
   brightest tissue is scalp fat, which would hide the brain).
 
+Gradient opacity (option ``gradient_opacity``, off by default) scales opacity by the local gradient: 0 where the
+value does not change, 1 from :func:`gradient_ramp_top` up, so homogeneous insides fade and boundaries stay.
+
 Rules that hold for every kind: the background is hidden; a class most of whose voxels touch the background
 (noise in the air, the partial-volume rim) is hidden; the densest real tissue (holding at least ``REAL_SHARE`` of
 the non-background voxels) is always shown; a tiny class never gets more opacity than the nearest real class below
@@ -209,3 +212,18 @@ def _cap_tiny(opacity: np.ndarray, voxels: np.ndarray, is_background: np.ndarray
         ceiling = opacity[lower[np.argmax(values[lower])]] if lower.size else opacity[real_ids].min()
         capped[c] = min(opacity[c], ceiling)
     return capped
+
+
+def gradient_ramp_top(tissue_values: Sequence[float], boundary_mm: float = 2.0) -> float:
+    """Gradient magnitude (volume units per mm) from which gradient opacity is 1: a typical tissue boundary.
+
+    Args:
+        tissue_values: mean values of the shown tissues, in intensity order (volume units).
+        boundary_mm: width over which a boundary between two tissues climbs (blur and partial volume).
+
+    Returns:
+        The median contrast between neighbouring shown tissues over ``boundary_mm``; 1 with fewer than 2 tissues.
+    """
+    contrasts = np.diff(np.sort(np.asarray(tissue_values, dtype=np.float64)))
+    contrasts = contrasts[contrasts > 0]
+    return float(np.median(contrasts)) / boundary_mm if contrasts.size else 1.0

@@ -74,7 +74,7 @@ def apply_design(volume_node, design: TransferFunctionDesign, volume_rendering_l
         name = scene.GenerateUniqueName(f"{volume_node.GetName()} {NODE_NAME_SUFFIX}")
         property_node = scene.AddNewNodeByClass("vtkMRMLVolumePropertyNode", name)
         property_node.SetNodeReferenceID(VOLUME_REFERENCE_ROLE, volume_node.GetID())
-    configure_volume_property(property_node.GetVolumeProperty(), design.unit_distance)
+    configure_volume_property(property_node.GetVolumeProperty(), design.unit_distance, design.gradient_ramp_top)
     update_property_node(property_node, design)
     low, high = volume_node.GetImageData().GetScalarRange()
     property_node.SetEffectiveRange(low, high)
