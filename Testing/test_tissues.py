@@ -172,3 +172,9 @@ def test_tissues_option_is_checked():
         design_transfer_function(values, tissues="some")
     with pytest.raises(ValueError, match="colors"):
         design_transfer_function(values, colors="rainbow")
+    with pytest.raises(ValueError, match="modality"):
+        design_transfer_function(values, modality="PET")
+    with pytest.raises(ValueError, match="gradient_opacity"):
+        design_transfer_function(values, gradient_opacity="yes")
+    with pytest.raises(ValueError, match="tissues"):
+        design_transfer_function(values, tissues=0)

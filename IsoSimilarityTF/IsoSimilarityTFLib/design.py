@@ -487,6 +487,10 @@ def design_transfer_function(
         raise ValueError(f"colors must be one of {COLOR_SCHEMES}; got {opts['colors']!r}")
     if opts["tissues"] not in ("auto", "all"):
         _tissue_count(opts["tissues"], TissueHierarchy(order=(0,), boundaries=(), auto=1))  # type check only
+    if opts["modality"] is not None:
+        detect_kind(np.dtype(np.float64), (0.0, 1.0), opts["modality"])  # refuses an unknown modality now
+    if not isinstance(opts["gradient_opacity"], bool):
+        raise ValueError(f"gradient_opacity must be True or False; got {opts['gradient_opacity']!r}")
     spacing = _check_spacing(spacing)
 
     def report(stage: str, fraction: float, message: str) -> None:
