@@ -2,7 +2,8 @@
 
 The pipeline, one module per step: :mod:`.quantize` (isovalue bins), :mod:`.cells` (unit cells and octree levels),
 :mod:`.similarity` (hierarchical isovalue similarity), :mod:`.clustering` (affinity propagation), :mod:`.classes`
-(ranked, coloured classes), :mod:`.transfer_function` (VTK objects and Slicer files), tied together by
+(ranked classes), :mod:`.tissues` (classes grouped into tissues), :mod:`.look` (default colours and opacities),
+:mod:`.transfer_function` (VTK objects and Slicer files), tied together by
 :func:`design_transfer_function`. Needs numpy, scikit-learn (at clustering time) and VTK; never Qt or the Slicer
 application, so it runs headless.
 """
@@ -10,7 +11,7 @@ application, so it runs headless.
 from .cells import octree_levels, unit_cell_intervals
 from .classes import IsovalueClass
 from .clustering import ClusteringError, ClusteringResult, cluster_isovalues
-from .design import TransferFunctionDesign, design_transfer_function
+from .design import Tissue, TransferFunctionDesign, design_transfer_function
 from .memory import InsufficientMemoryError
 from .quantize import Quantization, quantize
 from .similarity import IsovalueSimilarity, isovalue_similarity, similarity_matrix
@@ -25,6 +26,7 @@ __all__ = [
     "IsovalueClass",
     "IsovalueSimilarity",
     "Quantization",
+    "Tissue",
     "TransferFunctionDesign",
     "TransferFunctionFileError",
     "TransferFunctionPoints",
