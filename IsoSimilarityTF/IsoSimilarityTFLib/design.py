@@ -194,6 +194,7 @@ class TransferFunctionDesign:
         """Group the classes into ``tissues`` non-background tissues (``"auto"``: the intensity model's count,
         ``"all"``: one per class, the thesis), instantly, and give them the default look. Leaves solo mode."""
         n = _tissue_count(tissues, self.hierarchy)
+        self.options["tissues"] = tissues if isinstance(tissues, str) else int(tissues)  # rerunning reproduces it
         background = self.background_class
         groups = self.hierarchy.groups(n) if self.hierarchy.order else []
         if background is not None:

@@ -35,6 +35,7 @@ All functions are pure and work on bin indices (``0..n_bins-1``), never on the v
 """
 
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Optional
 
 import numpy as np
@@ -87,9 +88,11 @@ class IntensityModel:
         return mostly / np.maximum(mostly.sum(axis=1, keepdims=True), 1e-300)
 
 
+@lru_cache(maxsize=None)
 def _mixing_matrix(k: int) -> np.ndarray:
     """``(C, K)``: the mean of each component as a mix of the K tissue means. C = K pure components, then for each
-    neighbouring pair (k, k + 1) one component per partial-volume fraction."""
+    neighbouring pair (k, k + 1) one component per partial-volume fraction. Cached (read-only): EM asks every
+    iteration."""
     f = _MIXEL_FRACTIONS.size
     matrix = np.zeros((k + (k - 1) * f, k))
     matrix[np.arange(k), np.arange(k)] = 1.0
@@ -97,13 +100,17 @@ def _mixing_matrix(k: int) -> np.ndarray:
         rows = k + low * f + np.arange(f)
         matrix[rows, low] = 1 - _MIXEL_FRACTIONS
         matrix[rows, low + 1] = _MIXEL_FRACTIONS
+    matrix.flags.writeable = False
     return matrix
 
 
+@lru_cache(maxsize=None)
 def _majority_matrix(k: int) -> np.ndarray:
     """``(C, K)``: 1 where a component's voxels hold mostly tissue k (a mixel goes to the side it holds more of)."""
     mixing = _mixing_matrix(k)
-    return (mixing == mixing.max(axis=1, keepdims=True)).astype(np.float64)
+    majority = (mixing == mixing.max(axis=1, keepdims=True)).astype(np.float64)
+    majority.flags.writeable = False
+    return majority
 
 
 def _gauss(x: np.ndarray, mean: np.ndarray, var: float) -> np.ndarray:
