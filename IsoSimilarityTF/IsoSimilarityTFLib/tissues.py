@@ -35,7 +35,7 @@ All functions are pure and work on bin indices (``0..n_bins-1``), never on the v
 """
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 from typing import Optional
 
 import numpy as np
@@ -88,7 +88,7 @@ class IntensityModel:
         return mostly / np.maximum(mostly.sum(axis=1, keepdims=True), 1e-300)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _mixing_matrix(k: int) -> np.ndarray:
     """``(C, K)``: the mean of each component as a mix of the K tissue means. C = K pure components, then for each
     neighbouring pair (k, k + 1) one component per partial-volume fraction. Cached (read-only): EM asks every
@@ -104,7 +104,7 @@ def _mixing_matrix(k: int) -> np.ndarray:
     return matrix
 
 
-@lru_cache(maxsize=None)
+@cache
 def _majority_matrix(k: int) -> np.ndarray:
     """``(C, K)``: 1 where a component's voxels hold mostly tissue k (a mixel goes to the side it holds more of)."""
     mixing = _mixing_matrix(k)
