@@ -569,11 +569,8 @@ def design_transfer_function(
             [c.id for c in classes if c.id != background],
             similarity.matrix,
         )
-        kind = detect_kind(
-            np.asarray(values).dtype if not isinstance(values, Quantization) else np.float64,
-            quantized.value_range,
-            opts["modality"],
-        )
+        # The dtype attribute, never np.asarray: a volume larger than memory must not be loaded for it.
+        kind = detect_kind(np.dtype(getattr(values, "dtype", np.float64)), quantized.value_range, opts["modality"])
     design = TransferFunctionDesign(
         value_range=quantized.value_range,
         n_bins=quantized.n_bins,
