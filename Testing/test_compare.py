@@ -228,3 +228,70 @@ def test_verdict_applies_the_issue_targets():
     assert not compare.verdict(1.0, 1.31)
     assert not compare.verdict(None, 1.0)
     assert compare.ratio(2.0, 4.0) == 0.5 and compare.ratio(1.0, 0.0) is None
+
+
+def test_partial_volume_voxel_shows_the_tissue_that_raised_its_value():
+    # One row: air, an air voxel raised by the skin, soft tissue, a soft-tissue voxel raised by the skull, skull
+    # (a skull voxel lowered by soft tissue stays skull).
+    labels = np.array([[[0, 0, 1, 1, 1, 1, 2, 2]]], dtype=np.uint8)
+    values = np.array([[[-1000.0, -400.0, 55.0, 70.0, 62.0, 300.0, 700.0, 1000.0]]])
+    means = (-1000.0, 60.0, 1000.0)
+    shown = tissues.partial_volume_labels(values, labels, means, tolerance=60.0, radius=1)
+    assert shown.tolist() == [[[0, 1, 1, 1, 1, 2, 2, 2]]]
+    far = tissues.partial_volume_labels(values, labels, means, tolerance=60.0, radius=0)
+    assert far.tolist() == labels.tolist()  # no neighbour within reach: own tissue
+
+
+def test_dilate_grows_by_the_radius_without_wrapping():
+    mask = np.zeros((1, 1, 7), dtype=bool)
+    mask[0, 0, 0] = True
+    assert tissues.dilate(mask, 2)[0, 0].tolist() == [True, True, True, False, False, False, False]
+
+
+# ------------------------------------------------------------------------------------------------ with slicer-core
+
+# Our own values under the names Slicer's logic looks up (not Slicer's presets).
+LOGIC_PRESETS = """<?xml version="1.0" encoding="UTF-8"?>
+<MRML>
+  <VolumeProperty id="vtkMRMLVolumePropertyNode1" name="US-Fetal" interpolation="1" shade="1"
+    scalarOpacity="4 0 0 255 0.5" colorTransfer="8 0 0 0 0 255 1 1 1" gradientOpacity="4 0 1 255 1"/>
+  <VolumeProperty id="vtkMRMLVolumePropertyNode2" name="MR-Default" interpolation="1" shade="1"
+    scalarOpacity="4 0 0 400 0.4" colorTransfer="8 0 0.2 0 0 400 1 0.9 0.8" gradientOpacity="4 0 1 255 1"/>
+  <VolumeProperty id="vtkMRMLVolumePropertyNode3" name="Steep" interpolation="1" shade="1"
+    scalarOpacity="6 0 0 150 0 400 0.9" colorTransfer="8 0 1 0 0 400 0 0 1" gradientOpacity="4 0 1 255 1"/>
+</MRML>
+"""
+
+
+def _logic_presets(folder: Path) -> Path:
+    path = folder / "presets.xml"
+    path.write_text(LOGIC_PRESETS, encoding="utf-8")
+    return path
+
+
+def _blob(dtype, high: float) -> np.ndarray:
+    k, j, i = np.mgrid[:24, :24, :24]
+    radius = np.sqrt((k - 11.5) ** 2 + (j - 11.5) ** 2 + (i - 11.5) ** 2)
+    return (np.clip(1.0 - radius / 10.0, 0.0, 1.0) * high).astype(dtype)
+
+
+@pytest.mark.parametrize(("dtype", "high", "picked"), [(np.uint8, 250, "US-Fetal"), (np.int16, 400, "MR-Default")])
+def test_first_click_is_what_slicers_logic_recommends(tmp_path, dtype, high, picked):
+    rendering = pytest.importorskip("IsoSimilarityTFLib.rendering")
+    if not rendering.slicer_core_available():
+        pytest.skip("slicer-core is not installed")
+    compare = _load("compare")
+    values = _blob(dtype, high)
+    with rendering.HeadlessSlicer(size=(64, 64), presets_file=_logic_presets(tmp_path)) as headless:
+        volume_node = headless.add_volume(values)
+        looks = compare.prepare_looks(headless, volume_node, values, (1.0, 1.0, 1.0), ("Steep", "Missing"))
+        assert [look.name for look in looks] == [compare.OURS, compare.FIRST_CLICK, "Steep"]  # "Missing": left out
+        assert looks[1].picked == picked
+        steep = looks[2].property_node.GetVolumeProperty().GetScalarOpacity()
+        assert steep.GetValue(400.0) == pytest.approx(0.9)  # copied unshifted, as Slicer's preset menu does
+        pictures = compare.render_view(headless, volume_node, looks, "anterior", 64)
+    assert set(pictures) == {look.name for look in looks}
+    assert all(picture.shape == (64, 64, 3) for picture in pictures.values())
+    boxes = [rendering.content_box(picture) for picture in pictures.values() if picture.any()]
+    # One camera, framed onto the union of the looks: the largest content nearly fills the picture.
+    assert max(max(b[1] - b[0], b[3] - b[2]) + 1 for b in boxes) >= 0.8 * 64

@@ -28,7 +28,9 @@ casting available, each transfer function is also rendered once by the GPU ray c
 to record whether it triggers the lookup-table fallback warning.
 
 Outputs in ``benchmarks/results/``: ``compare-<volume>.png`` (rows = views, columns = looks, labelled),
-``compare.md`` and ``compare.json``.
+``compare.md`` and ``compare.json``. ``--backdrop slicer`` renders on Slicer's blue gradient instead (outputs named
+``compare-slicer*``, ``compare-<volume>-slicer.png``): good for looking, but the metrics then mix translucent haze
+with the light backdrop (a hazy transfer function looks brighter), so the committed numbers use black.
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ import datetime
 import json
 import os
 import platform
+import re
 import sys
 import time
 from collections.abc import Sequence
@@ -55,7 +58,13 @@ if str(HERE) not in sys.path:
 
 from picture_metrics import picture_metrics, resize_area  # noqa: E402
 from slicer_presets import ATTRIBUTION, PresetsNotFound, PresetsSource, find_presets, read_presets  # noqa: E402
-from tissue_visibility import property_functions, ray_axis, tissue_summary, tissue_weights  # noqa: E402
+from tissue_visibility import (  # noqa: E402
+    partial_volume_labels,
+    property_functions,
+    ray_axis,
+    tissue_summary,
+    tissue_weights,
+)
 
 REPO = HERE.parent
 RESULTS = HERE / "results"
@@ -92,12 +101,16 @@ class Case:
     available: Callable[[], bool] = field(default=lambda: True)
 
 
+#: The phantom's noise (HU) and blur (mm): ``head_phantom``'s defaults, which ``isosimtf phantom`` uses.
+PHANTOM_NOISE_HU, PHANTOM_BLUR_MM = 20.0, 1.0
+
+
 def _phantom() -> tuple:
     from IsoSimilarityTFLib.phantom import TISSUES, head_phantom
     from IsoSimilarityTFLib.report import load_input
 
     volume = load_input("phantom")
-    labels = head_phantom(volume.values.shape[0], seed=0).labels
+    labels = head_phantom(volume.values.shape[0], seed=0, noise_hu=PHANTOM_NOISE_HU, blur_mm=PHANTOM_BLUR_MM).labels
     return volume.values, volume.ijk_to_ras(), labels, TISSUES
 
 
@@ -203,11 +216,12 @@ def render_view(headless: Any, volume_node: Any, looks: list[Look], view: str, s
 
     probe = max(64, size // 4)
     headless.render_window.SetSize(probe, probe)
+    backdrop = headless.backdrop()
     boxes, picture = [], None
     for index, look in enumerate(looks):
         show(headless, volume_node, look)
         picture = headless.render(view if index == 0 else None, reset_camera=index == 0)
-        box = content_box(picture)
+        box = content_box(picture, backdrop)
         if box is not None:
             boxes.append(box)
     if boxes and picture is not None:
@@ -309,15 +323,20 @@ def verdict(brightness_ratio: float | None, noise_ratio: float | None) -> bool:
     return brightness_ratio >= MIN_BRIGHTNESS_RATIO and noise_ratio <= MAX_NOISE_RATIO
 
 
-def run_case(case: Case, presets: PresetsSource, size: int, gpu: bool) -> dict:
-    """Render and measure one volume; write its montage; return its numbers."""
+def run_case(case: Case, presets: PresetsSource, size: int, gpu: bool, backdrop: str = "black") -> dict:
+    """Render and measure one volume; write its montage; return its numbers.
+
+    Args:
+        backdrop: "black" or "slicer" (Slicer's gradient; the montages are then named ``compare-<key>-slicer.png``).
+    """
     from IsoSimilarityTFLib.rendering import HeadlessSlicer, write_png
 
     started = time.perf_counter()
     values, ijk_to_ras, labels, tissues = case.load()
     spacing = tuple(float(s) for s in np.linalg.norm(np.asarray(ijk_to_ras)[:3, :3], axis=0))
     pictures: dict[tuple[str, str], np.ndarray] = {}
-    with HeadlessSlicer(size=(size, size), presets_file=presets.path) as headless:
+    background = (0.0, 0.0, 0.0) if backdrop == "black" else None
+    with HeadlessSlicer(size=(size, size), presets_file=presets.path, background=background) as headless:
         volume_node = headless.add_volume(values, name=case.key, ijk_to_ras=ijk_to_ras)
         looks = prepare_looks(headless, volume_node, values, spacing, case.presets)
         for view in VIEWS:
@@ -330,9 +349,10 @@ def run_case(case: Case, presets: PresetsSource, size: int, gpu: bool) -> dict:
         design = looks[0].design  # type: ignore[attr-defined]
         picked = looks[1].picked  # type: ignore[attr-defined]
         columns = [(look.name, look.title) for look in looks]
-    metrics = {key: picture_metrics(picture) for key, picture in pictures.items()}
+        empty = headless.backdrop()
+    metrics = {key: picture_metrics(picture, empty) for key, picture in pictures.items()}
     RESULTS.mkdir(parents=True, exist_ok=True)
-    montage_path = RESULTS / f"compare-{case.key}.png"
+    montage_path = RESULTS / f"compare-{case.key}{'' if backdrop == 'black' else '-' + backdrop}.png"
     write_png(montage(case.title, pictures, metrics, VIEWS, columns), montage_path)
 
     comparisons = {}
@@ -373,7 +393,14 @@ def run_case(case: Case, presets: PresetsSource, size: int, gpu: bool) -> dict:
 
 
 def tissue_statistics(values, ijk_to_ras, labels, tissues, looks: list[Look], spacing) -> dict:
-    """Per view and look: each ground-truth tissue's share of the picture and visibility (``tissue_visibility``)."""
+    """Per view and look: each ground-truth tissue's share of the picture and visibility (``tissue_visibility``).
+
+    Samples are attributed with partial volume accounted for: 3 noise sigma of tolerance, the blur's 3-sigma reach.
+    """
+    from IsoSimilarityTFLib.phantom import TISSUE_HU
+
+    radius = int(np.ceil(3.0 * PHANTOM_BLUR_MM / min(spacing)))
+    attribution = partial_volume_labels(values, labels, TISSUE_HU, 3.0 * PHANTOM_NOISE_HU, radius)
     result: dict[str, dict] = {}
     for view in VIEWS:
         axis, reverse = ray_axis(ijk_to_ras, view)
@@ -381,7 +408,7 @@ def tissue_statistics(values, ijk_to_ras, labels, tissues, looks: list[Look], sp
         for look in looks:
             opacity, gradient, unit = property_functions(look.property_node.GetVolumeProperty())
             weights, crosses = tissue_weights(
-                values, labels, len(tissues), opacity, spacing, axis, reverse, unit, gradient
+                values, labels, len(tissues), opacity, spacing, axis, reverse, unit, gradient, attribution
             )
             result[view][look.name] = tissue_summary(weights, crosses, tissues)
     return result
@@ -402,8 +429,10 @@ def markdown(document: dict) -> str:
         "# First click: ours against Slicer's first click and presets",
         "",
         f"Made by `make compare` on {document['date']} ({document['seconds']:.0f} s; {document['renderer']}). "
-        f"Pictures {document['size']}x{document['size']}, black backdrop, one camera per volume and view "
-        "(fitted, then narrowed onto the union of what all looks show).",
+        f"Pictures {document['size']}x{document['size']}, {document['backdrop']} backdrop, one camera per volume and "
+        "view (fitted, then narrowed onto the union of what all looks show). GPU LUT fallback: whether VTK's GPU ray "
+        "caster logs that the transfer function needs a lookup table wider than the OpenGL texture limit (table width "
+        "asked > limit) and cuts it (one 128x128 GPU render per transfer function, VTK's messages captured).",
         "",
         f"{ATTRIBUTION} Source used: {document['presets_source']}.",
         "",
@@ -419,20 +448,23 @@ def markdown(document: dict) -> str:
         "",
         "## Summary: ours / best-suited preset",
         "",
-        "| volume | view | best preset | B ours | B preset | B ratio | N ours | N preset | N ratio | target |",
-        "|---|---|---|---:|---:|---:|---:|---:|---:|---|",
+        "| volume | view | best preset | B ours | B preset | B ratio | N ours | N preset | N ratio | target | "
+        "B ratio vs first click | N ratio vs first click |",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---|---:|---:|",
     ]
     for key, case in document["volumes"].items():
         best = case["best_preset"]
         for view in VIEWS:
             ours, preset = case["metrics"][view][OURS], case["metrics"][view].get(best)
             r = case["ratios"][view].get(best)
+            first = case["ratios"][view].get(FIRST_CLICK, {})
             if preset is None or r is None:
                 continue
             lines.append(
                 f"| {key} | {view} | {best} | {ours['brightness']:.1f} | {preset['brightness']:.1f} | "
                 f"{_fmt(r['brightness_ratio'])} | {ours['colour_noise']:.2f} | {preset['colour_noise']:.2f} | "
-                f"{_fmt(r['colour_noise_ratio'])} | {'pass' if r['pass'] else '**fail**'} |"
+                f"{_fmt(r['colour_noise_ratio'])} | {'pass' if r['pass'] else '**fail**'} | "
+                f"{_fmt(first.get('brightness_ratio'))} | {_fmt(first.get('colour_noise_ratio'))} |"
             )
     for key, case in document["volumes"].items():
         lines += [
@@ -453,8 +485,7 @@ def markdown(document: dict) -> str:
             for view in VIEWS:
                 m = case["metrics"][view][look["name"]]
                 r = case["ratios"][view].get(look["name"], {})
-                fallback = gpu.get(look["name"], {}).get("fallback") if isinstance(gpu, dict) else None
-                gpu_text = "n/a" if fallback is None else ("**yes**" if fallback else "no")
+                gpu_text = gpu_cell(gpu.get(look["name"], {}))
                 lines.append(
                     f"| {look['title']} | {view} | {m['brightness']:.1f} | {m['colour_noise']:.2f} | "
                     f"{100 * m['coverage']:.1f}% | {_fmt(r.get('brightness_ratio'))} | "
@@ -464,6 +495,16 @@ def markdown(document: dict) -> str:
             lines += tissue_table(case)
     lines.append("")
     return "\n".join(lines)
+
+
+def gpu_cell(check: dict) -> str:
+    """``no``, ``**yes** (1048576 > 16384)`` (the table width asked and the limit), or ``n/a``."""
+    if "fallback" not in check:
+        return "n/a"
+    if not check["fallback"]:
+        return "no"
+    found = re.search(r"texture size of (\d+).*?maximum allowed, (\d+)", " ".join(check.get("messages", [])))
+    return f"**yes** ({found.group(1)} > {found.group(2)})" if found else "**yes**"
 
 
 def tissue_table(case: dict) -> list[str]:
@@ -493,6 +534,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--size", type=int, default=512, help="picture side in pixels (default %(default)s)")
     parser.add_argument("--volumes", nargs="*", help="only these volumes: " + ", ".join(c.key for c in CASES))
     parser.add_argument("--no-gpu", action="store_true", help="skip the GPU lookup-table check")
+    parser.add_argument(
+        "--backdrop",
+        choices=("black", "slicer"),
+        default="black",
+        help="3D view backdrop; with 'slicer' (Slicer's gradient) the outputs get a '-slicer' suffix",
+    )
     args = parser.parse_args(argv)
     try:
         presets = find_presets(args.presets, REPO)
@@ -513,7 +560,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"compare: skipping {case.key}: {case.source} is not installed", file=sys.stderr)
             continue
         print(f"compare: {case.key} ...", file=sys.stderr, flush=True)
-        volumes[case.key] = run_case(case, presets, args.size, gpu=not args.no_gpu)
+        volumes[case.key] = run_case(case, presets, args.size, gpu=not args.no_gpu, backdrop=args.backdrop)
         print(f"compare: {case.key} done in {volumes[case.key]['seconds']} s", file=sys.stderr, flush=True)
     import vtkmodules
 
@@ -521,6 +568,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "seconds": time.perf_counter() - started,
         "size": args.size,
+        "backdrop": args.backdrop,
         "renderer": f"headless Slicer (slicer-core), CPU ray casting, VTK {vtkmodules.__version__}, "
         f"{platform.machine()}",
         "presets_source": presets.origin,
@@ -529,9 +577,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         "volumes": volumes,
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "compare.json").write_text(json.dumps(document, indent=1) + "\n", encoding="utf-8")
-    (RESULTS / "compare.md").write_text(markdown(document), encoding="utf-8")
-    print(f"compare: wrote {RESULTS / 'compare.md'} in {document['seconds']:.0f} s", file=sys.stderr)
+    stem = "compare" if args.backdrop == "black" else f"compare-{args.backdrop}"
+    (RESULTS / f"{stem}.json").write_text(json.dumps(document, indent=1) + "\n", encoding="utf-8")
+    (RESULTS / f"{stem}.md").write_text(markdown(document), encoding="utf-8")
+    print(f"compare: wrote {RESULTS / (stem + '.md')} in {document['seconds']:.0f} s", file=sys.stderr)
     return 0
 
 

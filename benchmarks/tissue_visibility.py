@@ -8,7 +8,17 @@ along the view direction), samples are the voxels (nearest, one per voxel step),
     alpha = 1 - (1 - a(v) * g(|grad v|)) ** (step_mm / unit_distance)      (opacity per unit distance, as VTK)
     weight of the sample = T * alpha, then T *= 1 - alpha                   (T = transmittance so far)
 
-``a`` is the scalar opacity function, ``g`` the gradient opacity (1 when disabled or constant). For a tissue t:
+``a`` is the scalar opacity function, ``g`` the gradient opacity (1 when disabled or constant).
+
+Partial volume: the scanner's blur moves values across tissue borders, so the first voxel a CT-Bone ray stops in is
+often a soft-tissue voxel whose value the nearby skull has raised (labels are sampled from the sharp geometry). Such
+a voxel shows the skull's surface, not soft tissue. Rule: a sample whose value lies more than ``tolerance`` (3 noise
+sigma) above its own tissue's mean, with a denser tissue within ``radius`` voxels (the blur's reach), is attributed
+to that denser tissue (the one whose mean is nearest the value); every other sample to its own tissue
+(:func:`partial_volume_labels`). Only upward: opacity in these transfer functions rises with the value, so the
+surface a border renders is its denser side's, and a voxel lowered by a lighter neighbour still shows its own tissue.
+
+For a tissue t:
 
 - picture share: the sum of its samples' weights over all rays divided by the sum over all tissues: which part of
   what the picture shows is t (the weights of a ray add up to that pixel's opacity);
@@ -75,6 +85,47 @@ def function_points(function) -> np.ndarray:
     return np.asarray(points, dtype=np.float64).reshape(-1, 2)
 
 
+def dilate(mask: np.ndarray, radius: int) -> np.ndarray:
+    """Grow a boolean mask by ``radius`` voxels along every axis (a cube neighbourhood), without wrapping around."""
+    out = np.asarray(mask, dtype=bool)
+    for axis in range(out.ndim):
+        pad = [(radius, radius) if a == axis else (0, 0) for a in range(out.ndim)]
+        padded = np.pad(out, pad)
+        size = out.shape[axis]
+        out = np.logical_or.reduce([np.take(padded, range(s, s + size), axis=axis) for s in range(2 * radius + 1)])
+    return out
+
+
+def partial_volume_labels(
+    values: np.ndarray, labels: np.ndarray, means: Sequence[float], tolerance: float, radius: int
+) -> np.ndarray:
+    """The tissue each voxel's value shows, with partial volume: raised by a denser neighbour, it shows that one.
+
+    See the module notes.
+
+    Args:
+        values: scalar volume; labels: integer tissue labels (same shape).
+        means: nominal value of each tissue, indexed by label.
+        tolerance: how far (value units) a value may lie from its tissue's mean and still be that tissue's.
+        radius: how far (voxels) a neighbouring tissue may be to explain a value.
+
+    Returns:
+        labels of the same shape and dtype.
+    """
+    means = np.asarray(means, dtype=np.float64)
+    own = means[labels]
+    raised = values.astype(np.float64) - own > tolerance
+    result = labels.copy()
+    best = np.full(values.shape, np.inf)
+    for tissue, mean in enumerate(means):
+        candidate = raised & (mean > own) & dilate(labels == tissue, radius)
+        distance = np.abs(mean - values)
+        better = candidate & (distance < best)
+        result[better] = tissue
+        best[better] = distance[better]
+    return result
+
+
 def tissue_weights(
     values: np.ndarray,
     labels: np.ndarray,
@@ -85,6 +136,7 @@ def tissue_weights(
     reverse: bool,
     unit_distance: float = 1.0,
     gradient_opacity: OpacityFunction | None = None,
+    attribution: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Composite front to back along ``axis``; return per-tissue weights and which rays cross which tissue.
 
@@ -97,15 +149,18 @@ def tissue_weights(
         axis: array axis of the rays; ``reverse``: rays start at the last index.
         unit_distance: the property's scalar opacity unit distance in mm.
         gradient_opacity: opacity factor per gradient magnitude (value units per mm), or None for 1.
+        attribution: the tissue each sample's weight goes to (e.g. :func:`partial_volume_labels`); ``labels``
+            when None. A ray crosses a tissue when one of its samples has that label or attribution.
 
     Returns:
         ``weights`` ``(rows, columns, n_labels)`` float: per ray, each tissue's share of the pixel's colour;
-        ``crosses`` ``(rows, columns, n_labels)`` bool: the ray passes through the tissue.
+        ``crosses`` ``(rows, columns, n_labels)`` bool: the ray passes through the tissue (so visibility <= 1).
     """
     step_mm = float(spacing[2 - axis])
     order = slice(None, None, -1) if reverse else slice(None)
     stack = np.moveaxis(values, axis, 0)[order]
     tissue = np.moveaxis(labels, axis, 0)[order]
+    shown = tissue if attribution is None else np.moveaxis(attribution, axis, 0)[order]
     if gradient_opacity is not None:
         gradients = np.gradient(values.astype(np.float32), *(float(s) for s in spacing[::-1]))
         magnitude = np.moveaxis(np.sqrt(sum(g * g for g in gradients)), axis, 0)[order]
@@ -119,9 +174,9 @@ def tissue_weights(
             a = a * np.clip(gradient_opacity(magnitude[index].astype(np.float64)), 0.0, 1.0)
         alpha = 1.0 - (1.0 - a) ** exponent
         contribution = transmittance * alpha
-        one_hot = tissue[index][..., None] == np.arange(n_labels)
-        weights += contribution[..., None] * one_hot
-        crosses |= one_hot
+        tissues = np.arange(n_labels)
+        weights += contribution[..., None] * (shown[index][..., None] == tissues)
+        crosses |= (tissue[index][..., None] == tissues) | (shown[index][..., None] == tissues)
         transmittance *= 1.0 - alpha
     return weights, crosses
 

@@ -35,6 +35,7 @@ __all__ = [
     "BACKDROPS",
     "DEFAULT_RENDERING_METHOD",
     "LOOKUP_TABLE_FALLBACK",
+    "LOOKUP_TABLE_LIMIT",
     "RAY_CASTING",
     "VIEW_DIRECTIONS",
     "HeadlessSlicer",
@@ -42,6 +43,7 @@ __all__ = [
     "content_box",
     "frame_content",
     "lookup_table_fallbacks",
+    "lookup_table_width",
     "render_volume",
     "slicer_core_available",
     "write_png",
@@ -301,6 +303,32 @@ def split_vtk_messages(text: str) -> list[str]:
             continue
         current.append(_VTK_OBJECT.sub("", line).strip())
     return messages
+
+
+#: Widest lookup table (texels) Mesa's OpenGL takes (``GL_MAX_TEXTURE_SIZE`` of llvmpipe); desktop GPUs take 16384 or
+#: 32768. A transfer function whose :func:`lookup_table_width` stays within it renders without the fallback.
+LOOKUP_TABLE_LIMIT = 16384
+
+
+def lookup_table_width(volume_property: vtkVolumeProperty, scalar_range: Sequence[float]) -> int:
+    """Width of the colour / opacity lookup table VTK's GPU ray caster asks for, without rendering.
+
+    As ``vtkOpenGLVolumeLookupTable`` does: the functions' ``EstimateMinNumberOfSamples`` over the volume's scalar
+    range (the range divided by the smallest distance between points), rounded up to a power of two, at least 1024.
+    A near-vertical step (points 0.004 HU apart over a 4000 HU range) asks for 1048576; above the OpenGL limit
+    (:data:`LOOKUP_TABLE_LIMIT`) VTK logs :data:`LOOKUP_TABLE_FALLBACK` and cuts the table.
+
+    Args:
+        volume_property: a ``vtkVolumeProperty`` (component 0 is checked).
+        scalar_range: ``(low, high)`` of the volume's values.
+    """
+    low, high = float(scalar_range[0]), float(scalar_range[1])
+    samples = max(
+        volume_property.GetRGBTransferFunction().EstimateMinNumberOfSamples(low, high),
+        volume_property.GetScalarOpacity().EstimateMinNumberOfSamples(low, high),
+        1,
+    )
+    return max(1024, 1 << (int(samples) - 1).bit_length())
 
 
 def lookup_table_fallbacks(messages: Sequence[str]) -> list[str]:
@@ -622,7 +650,8 @@ class HeadlessSlicer:
         self._check_open()
         if self._background is not None:
             color = np.round(255.0 * np.clip(self._background, 0.0, 1.0)).astype(np.uint8)
-            return np.broadcast_to(color, (self._size[1], self._size[0], 3)).copy()
+            width, height = self.render_window.GetSize()  # the current size (it may have been changed)
+            return np.broadcast_to(color, (height, width, 3)).copy()
         hidden = self.rendered_volumes()
         for prop in hidden:
             prop.SetVisibility(False)
