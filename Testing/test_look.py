@@ -117,3 +117,14 @@ def test_gradient_opacity_is_an_option_off_by_default():
     gradient = on.volume_property().GetGradientOpacity()
     assert top > 0 and gradient.GetValue(0.0) == 0.0 and gradient.GetValue(top) == pytest.approx(1.0)
     assert gradient_ramp_top([0.0, 100.0, 300.0]) == pytest.approx(75.0)  # median contrast 150 over 2 mm
+
+
+def test_designs_fit_the_gpu_lookup_table():
+    """VTK's own estimate (EstimateMinNumberOfSamples, as the GPU ray caster computes it) stays at 4096 or less."""
+    from IsoSimilarityTFLib.rendering import lookup_table_width
+
+    rng = np.random.default_rng(3)
+    values = (np.indices((24, 24, 24)).sum(axis=0) * 60 - 1500 + rng.normal(0, 30, (24, 24, 24))).astype(np.int16)
+    for tissues in ("auto", "all"):
+        design = design_transfer_function(values, (0.5, 0.5, 0.5), tissues=tissues)
+        assert lookup_table_width(design.volume_property(), design.value_range) <= 4096
