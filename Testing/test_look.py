@@ -128,3 +128,14 @@ def test_designs_fit_the_gpu_lookup_table():
     for tissues in ("auto", "all"):
         design = design_transfer_function(values, (0.5, 0.5, 0.5), tissues=tissues)
         assert lookup_table_width(design.volume_property(), design.value_range) <= 4096
+
+
+def test_ct_colour_follows_each_class_hu():
+    classes = make_classes([100000, 40000, 30000, 20000, 10000])
+    values = np.array([-1000, 40, 300, 700, 1200.0])
+    tissue_of = np.array([0, 1, 1, 1, 2])
+    ct, _, _ = default_look(classes, tissue_of, values, "ct")
+    assert [sum(ct[c]) for c in (1, 2, 3, 4)] == sorted(sum(ct[c]) for c in (1, 2, 3, 4))
+    assert ct[2] != ct[3]  # one tissue, two densities, two colours on CT
+    mr, _, _ = default_look(classes, tissue_of, values, "mr")
+    assert mr[1] == mr[2] == mr[3]  # one colour per tissue on uncalibrated data

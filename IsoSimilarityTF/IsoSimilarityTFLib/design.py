@@ -277,7 +277,7 @@ class TransferFunctionDesign:
             c.color, c.opacity, c.visible = color, opacity, shown
         for t in self.tissues:
             members = [self.classes[c] for c in t.classes]
-            t.color = list(members[0].color)
+            t.color = list(max(members, key=lambda c: c.voxels).color)  # its largest class's, where they differ
             t.opacity = max(c.opacity for c in members)
             t.visible = any(c.visible for c in members)
 
