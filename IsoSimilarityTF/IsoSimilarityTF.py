@@ -7,6 +7,8 @@ in the volume rendering, ``pictures`` draws the similarity matrix. This file onl
 import functools
 import logging
 import os
+import shutil
+import sys
 from typing import Annotated, Optional
 
 import ctk
@@ -26,6 +28,9 @@ from slicer.ScriptedLoadableModule import (
 )
 from slicer.util import VTKObservationMixin
 
+from IsoSimilarityTFLib.options import OPTIONS
+from IsoSimilarityTFLib.session import DesignSession
+
 #
 # IsoSimilarityTF
 #
@@ -37,9 +42,12 @@ class IsoSimilarityTF(ScriptedLoadableModule):
     def __init__(self, parent):
         ScriptedLoadableModule.__init__(self, parent)
         self.parent.title = _("Iso-Similarity Transfer Function")
+        # "Rendering" is a category of the Extensions Index (ACCEPTED_EXTENSION_CATEGORIES); Slicer's own Volume
+        # Rendering module sits at the top level.
         self.parent.categories = [translate("qSlicerAbstractCoreModule", "Rendering")]
-        self.parent.dependencies = ["VolumeRendering"]
-        self.parent.contributors = ["IsoSimilarityTF developers"]
+        self.parent.dependencies = ["VolumeRendering", "Segmentations"]
+        # No author has been recorded for the project yet: replace with "First Last (Organization)" entries.
+        self.parent.contributors = ["IsoSimilarityTF maintainers"]
         self.parent.helpText = _(
             """
 Designs a multi-class transfer function for volume rendering automatically, from the volume alone.
@@ -63,13 +71,24 @@ def resourcePath(fileName: str) -> str:
     return os.path.join(os.path.dirname(os.path.abspath(__file__)), "Resources", fileName)
 
 
-class IsoSimilarityTFCancelled(Exception):
-    """Raised from the progress callback when the user pressed Cancel; the design is abandoned."""
-
-
 #
 # IsoSimilarityTFParameterNode
 #
+
+# The engine options' ranges, choices and defaults come from the one options table of the library.
+
+
+def _withinRange(option: str, minimum: Optional[float] = None) -> WithinRange:
+    entry = OPTIONS[option]
+    return WithinRange(entry.minimum if minimum is None else minimum, entry.maximum)
+
+
+def _choice(option: str, *extra: str) -> Choice:
+    return Choice([*OPTIONS[option].choices, *extra])
+
+
+def _default(option: str):
+    return OPTIONS[option].default
 
 
 @parameterNodeWrapper
@@ -91,18 +110,18 @@ class IsoSimilarityTFParameterNode:
     """
 
     inputVolume: vtkMRMLScalarVolumeNode
-    bins: Annotated[int, WithinRange(2, 4096)] = 256
-    levels: Annotated[int, WithinRange(0, 32)] = 0
-    crossing: Annotated[str, Choice(["inclusive", "strict"])] = "inclusive"
-    normalization: Annotated[str, Choice(["thesis", "ma-entezari"])] = "thesis"
-    preference: Annotated[str, Choice(["median", "minimum", "number"])] = "median"
+    bins: Annotated[int, _withinRange("n_bins")] = _default("n_bins")
+    levels: Annotated[int, _withinRange("levels", minimum=0)] = 0  # 0: all levels (None in the engine)
+    crossing: Annotated[str, _choice("crossing")] = _default("crossing")
+    normalization: Annotated[str, _choice("normalization")] = _default("normalization")
+    preference: Annotated[str, _choice("preference", "number")] = _default("preference")
     preferenceValue: Annotated[float, WithinRange(-100.0, 0.0)] = -1.0
-    damping: Annotated[float, WithinRange(0.5, 0.99)] = 0.5
-    maxIterations: Annotated[int, WithinRange(1, 100000)] = 200
-    convergenceIterations: Annotated[int, WithinRange(1, 10000)] = 15
-    maxClasses: Annotated[int, WithinRange(0, 1000)] = 15
-    background: Annotated[str, Choice(["largest", "lowest", "none"])] = "largest"
-    unconverged: Annotated[str, Choice(["raise-damping", "error", "keep"])] = "raise-damping"
+    damping: Annotated[float, _withinRange("damping")] = _default("damping")
+    maxIterations: Annotated[int, _withinRange("max_iter")] = _default("max_iter")
+    convergenceIterations: Annotated[int, _withinRange("convergence_iter")] = _default("convergence_iter")
+    maxClasses: Annotated[int, _withinRange("max_classes")] = _default("max_classes")
+    background: Annotated[str, _choice("background")] = _default("background")
+    unconverged: Annotated[str, _choice("unconverged")] = _default("unconverged")
 
 
 #
@@ -115,11 +134,44 @@ COLUMN_CLASS, COLUMN_COLOR, COLUMN_OPACITY, COLUMN_VISIBLE, COLUMN_SOLO, COLUMN_
 # Share of the progress bar per stage of the engine (clustering gives no progress of its own).
 STAGE_PROGRESS = {"quantize": (0, 5), "similarity": (5, 60), "clustering": (60, 97), "classes": (97, 100)}
 
-# Similarity matrices the logic keeps for volumes designed in this session (4096 bins: 128 MB each).
-MAX_KEPT_SIMILARITIES = 4
+# How often the panel reads the progress of the design process, in milliseconds.
+POLL_INTERVAL_MS = 100
 
 # Side of the similarity picture in the panel, in pixels (a multiple of 4: Qt image rows are 4-byte aligned).
 SIMILARITY_PICTURE_SIZE = 256
+
+
+def choiceLabels() -> dict:
+    """Readable, translatable labels of the choice parameters' values, by parameter and value.
+
+    The parameter node keeps the values themselves (scenes stay readable by every version); the combo boxes show
+    these labels (the wrapper's combo box connector reads and writes by index, not by text).
+    """
+    return {
+        "crossing": {
+            "inclusive": _("Inclusive: min <= value <= max (thesis)"),
+            "strict": _("Strict: min < value < max (Ma and Entezari's code)"),
+        },
+        "normalization": {
+            "thesis": _("Thesis: overlap / larger count"),
+            "ma-entezari": _("Ma and Entezari: overlap / count, then the smaller"),
+        },
+        "preference": {
+            "median": _("Median similarity"),
+            "minimum": _("Minimum similarity (fewer classes)"),
+            "number": _("Value below"),
+        },
+        "background": {
+            "largest": _("Largest class"),
+            "lowest": _("Lowest intensity class"),
+            "none": _("None (show every class)"),
+        },
+        "unconverged": {
+            "raise-damping": _("Retry with more damping"),
+            "error": _("Stop with an error"),
+            "keep": _("Keep the last grouping"),
+        },
+    }
 
 
 class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
@@ -134,11 +186,17 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self._selectionNode = None
         # The input follows the scene's active volume until the user picks another volume.
         self._followActiveVolume = True
-        self._running = False
-        self._cancelRequested = False
+        # The design being computed: a child process (IsoSimilarityTFLib.worker) and the volume it is for.
+        self._job = None
+        self._jobVolume = None
+        self._pollTimer = None
         # The volume whose design the classes table shows (the table is rebuilt when the input changes).
         self._shownVolume = None
         self._rowWidgets = []
+
+    @property
+    def _running(self) -> bool:
+        return self._job is not None
 
     def setup(self) -> None:
         ScriptedLoadableModuleWidget.setup(self)
@@ -150,7 +208,10 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         uiWidget.setMRMLScene(slicer.mrmlScene)
 
         self.logic = IsoSimilarityTFLogic()
-        self.logic.logCallback = self.addLog
+
+        self._pollTimer = qt.QTimer()
+        self._pollTimer.setInterval(POLL_INTERVAL_MS)
+        self._pollTimer.connect("timeout()", self._pollJob)
 
         self.addObserver(slicer.mrmlScene, slicer.mrmlScene.StartCloseEvent, self.onSceneStartClose)
         self.addObserver(slicer.mrmlScene, slicer.mrmlScene.EndCloseEvent, self.onSceneEndClose)
@@ -162,6 +223,8 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self.ui.resetColorsButton.connect("clicked(bool)", self.onResetColorsButton)
         self.ui.showAllButton.connect("clicked(bool)", self.onShowAllButton)
         self.ui.exportButton.connect("clicked(bool)", self.onExportButton)
+        self.ui.exportSegmentationButton.connect("clicked(bool)", self.onExportSegmentationButton)
+        self.ui.savePresetButton.connect("clicked(bool)", self.onSavePresetButton)
 
         self.ui.progressBar.hide()
         self.ui.cancelButton.hide()
@@ -174,22 +237,32 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self.initializeParameterNode()
 
     def cleanup(self) -> None:
+        self._stopJob()
         self.removeObservers()
 
     def enter(self) -> None:
         self.initializeParameterNode()
 
     def exit(self) -> None:
-        if self._parameterNode:
-            self._parameterNode.disconnectGui(self._parameterNodeGuiTag)
-            self._parameterNodeGuiTag = None
-            self.removeObserver(self._parameterNode, vtk.vtkCommand.ModifiedEvent, self._onParameterNodeModified)
+        # The GUI stays connected to the parameter node (see setParameterNode); nothing to undo here.
+        pass
+
+    def onReload(self) -> None:
+        """Reload the library too: Slicer's reload executes only this file, and would keep the old
+        IsoSimilarityTFLib modules of sys.modules."""
+        self._stopJob()
+        for name in list(sys.modules):
+            if name == "IsoSimilarityTFLib" or name.startswith("IsoSimilarityTFLib."):
+                del sys.modules[name]
+        ScriptedLoadableModuleWidget.onReload(self)
 
     def onSceneStartClose(self, caller, event) -> None:
-        # A design under way would be written into the closing scene: abandon it at its next progress report.
-        self._cancelRequested = self._cancelRequested or self._running
+        # A design under way would be written into the closing scene: stop it.
+        if self._running:
+            self._stopJob()
+            self._setRunning(False)
         self.setParameterNode(None)
-        self.logic.forgetDesign()
+        self.logic.forget()
         self._shownVolume = None
         self._showDesign(None)
 
@@ -208,15 +281,47 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self._onParameterNodeModified()
 
     def setParameterNode(self, inputParameterNode: Optional[IsoSimilarityTFParameterNode]) -> None:
+        """Connect the panel to a parameter node, once per MRML node.
+
+        Re-entering the module gives a new wrapper of the same MRML node: it is not reconnected. On Slicer 5.8
+        ``connectGui`` returns no tag, so ``disconnectGui`` cannot undo it, and each new connection rebuilds the
+        choice combo boxes, which writes their first and last choices into the parameter node (Slicer#7545).
+        """
+        if (
+            inputParameterNode is not None
+            and self._parameterNode is not None
+            and inputParameterNode.parameterNode is self._parameterNode.parameterNode
+        ):
+            return
         if self._parameterNode:
-            self._parameterNode.disconnectGui(self._parameterNodeGuiTag)
+            if self._parameterNodeGuiTag is not None:
+                self._parameterNode.disconnectGui(self._parameterNodeGuiTag)
+            self._parameterNodeGuiTag = None
             self.removeObserver(self._parameterNode, vtk.vtkCommand.ModifiedEvent, self._onParameterNodeModified)
         self._parameterNode = inputParameterNode
         if self._parameterNode:
             # Widgets with a "SlicerParameterName" dynamic property in the .ui are bound to the parameter of that name.
             self._parameterNodeGuiTag = self._parameterNode.connectGui(self.ui)
+            self._labelChoiceComboBoxes()
             self.addObserver(self._parameterNode, vtk.vtkCommand.ModifiedEvent, self._onParameterNodeModified)
             self._onParameterNodeModified()
+
+    def _labelChoiceComboBoxes(self) -> None:
+        """Show readable labels instead of the parameter values the connector put in the combo boxes."""
+        comboBoxes = {
+            "crossing": self.ui.crossingComboBox,
+            "normalization": self.ui.normalizationComboBox,
+            "preference": self.ui.preferenceComboBox,
+            "background": self.ui.backgroundComboBox,
+            "unconverged": self.ui.unconvergedComboBox,
+        }
+        for parameter, labels in choiceLabels().items():
+            comboBox = comboBoxes[parameter]
+            for index in range(comboBox.count):
+                value = comboBox.itemText(index)
+                if value in labels:
+                    comboBox.setItemText(index, labels[value])
+                    comboBox.setItemData(index, value, qt.Qt.ToolTipRole)
 
     def _onParameterNodeModified(self, caller=None, event=None) -> None:
         volume = self._parameterNode.inputVolume if self._parameterNode else None
@@ -233,7 +338,13 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         )
         if volume is not self._shownVolume:
             self._shownVolume = volume
-            self._showDesign(self.logic.restoreDesign(volume))
+            design = self.logic.restore(volume)
+            self._showDesign(design)
+            if design is not None and self.logic.outside_change() is not None:
+                self.ui.statusLabel.text = _(
+                    "The 3D view shows another transfer function than this design (changed in the Volume Rendering "
+                    "module). Editing a class shows the design again, after asking."
+                )
 
     # Active volume ---------------------------------------------------------------------------------------------------
     def _observeSelectionNode(self) -> None:
@@ -266,44 +377,73 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         activeVolume = self._activeVolume()
         self._followActiveVolume = node is None or activeVolume is None or node is activeVolume
 
-    # Apply -----------------------------------------------------------------------------------------------------------
+    # Apply: the design runs in a child process, polled by a timer, so Slicer stays responsive and Cancel is at once.
     def onApplyButton(self) -> None:
         if self._running or not self._parameterNode or not self._parameterNode.inputVolume:
             return
         volume = self._parameterNode.inputVolume
+        # Asked before the busy cursor; the install (if accepted) shows its own status.
+        if not self._ensureScikitLearn():
+            self.ui.statusLabel.text = _("scikit-learn is needed to group the isovalues into classes.")
+            return
         with slicer.util.tryWithErrorDisplay(_("Failed to compute the transfer function."), waitCursor=True):
-            if not self._ensureScikitLearn():
-                self.ui.statusLabel.text = _("scikit-learn is needed to group the isovalues into classes.")
-                return
+            options = self.logic.designOptions(self._parameterNode)
+            from IsoSimilarityTFLib.session import fit_levels
+
+            dimensions = volume.GetImageData().GetDimensions() if volume.GetImageData() else (0, 0, 0)
+            available = fit_levels(tuple(reversed(dimensions)), options)[1]
+            if available is not None:
+                logging.info(f"IsoSimilarityTF: {volume.GetName()} has {available} octree levels; using all of them")
+            self.addLog(_("Designing a transfer function for {name}...").format(name=volume.GetName()))
+            self._job = self.logic.start(volume, options)
+            self._jobVolume = volume
             self._setRunning(True)
-            try:
-                self.logic.run(volume, self.logic.designOptions(self._parameterNode), progress=self._onProgress)
+            self._pollTimer.start()
+
+    def _pollJob(self) -> None:
+        job = self._job
+        if job is None:
+            self._pollTimer.stop()
+            return
+        finished = not job.running
+        for stage, fraction, message in job.poll():
+            low, high = STAGE_PROGRESS.get(stage, (0, 100))
+            self.ui.progressBar.value = round(low + (high - low) * min(max(fraction, 0.0), 1.0))
+            self.ui.progressBar.setFormat(f"{message} (%p%)")
+        if not finished:
+            return
+        self._pollTimer.stop()
+        volume = self._jobVolume
+        self._job = self._jobVolume = None
+        try:
+            with slicer.util.tryWithErrorDisplay(_("Failed to compute the transfer function."), waitCursor=True):
+                if volume.GetScene() is None:
+                    job.close()
+                    raise RuntimeError(_("The input volume was removed from the scene."))
+                design = self.logic.finish(volume, job)
                 self._shownVolume = volume
-            except IsoSimilarityTFCancelled:
-                self.addLog(_("Cancelled."))
-                return
-            finally:
-                self._setRunning(False)
-            self._showDesign(self.logic.design)
-            self.addLog(self.logic.summaryText(self.logic.design))
+                self._showDesign(design)
+                self.addLog(self.logic.summaryText(design))
+                logging.info(f"IsoSimilarityTF timings for {volume.GetName()}: {self.logic.timingsText(design)}")
+        finally:
+            self._setRunning(False)
 
     def onCancelButton(self) -> None:
-        self._cancelRequested = True
-        self.ui.cancelButton.enabled = False
-        self.addLog(_("Cancelling..."))
+        self._stopJob()
+        self._setRunning(False)
+        self.addLog(_("Cancelled."))
 
-    def _onProgress(self, stage: str, fraction: float, message: str) -> None:
-        low, high = STAGE_PROGRESS.get(stage, (0, 100))
-        self.ui.progressBar.value = round(low + (high - low) * min(max(fraction, 0.0), 1.0))
-        self.ui.progressBar.setFormat(f"{message} (%p%)")
-        slicer.app.processEvents()
-        if self._cancelRequested:
-            raise IsoSimilarityTFCancelled()
+    def _stopJob(self) -> None:
+        """Kill the design process, if any, and forget it (takes effect at once, at any stage)."""
+        if self._pollTimer is not None:
+            self._pollTimer.stop()
+        if self._job is not None:
+            self._job.close()
+        self._job = self._jobVolume = None
 
     def _setRunning(self, running: bool) -> None:
-        self._running = running
-        self._cancelRequested = False
         self.ui.progressBar.value = 0
+        self.ui.progressBar.setFormat("%p%")
         self.ui.progressBar.visible = running
         self.ui.cancelButton.visible = running
         self.ui.cancelButton.enabled = running
@@ -326,6 +466,7 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             packaging = None
         if packaging is not None and hasattr(packaging, "pip_ensure"):
             try:
+                # Asks, then installs with its own progress dialog.
                 packaging.pip_ensure(packaging.load_requirements(requirementsFile), requester="IsoSimilarityTF")
             except RuntimeError as error:  # the user declined
                 logging.info(f"scikit-learn not installed: {error}")
@@ -346,11 +487,16 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             windowTitle=_("Install Python packages"),
         ):
             return False
-        slicer.util.pip_install(" ".join(requirements))
-        return IsoSimilarityTFLogic.scikitLearnAvailable()
+        # Slicer 5.8 and 5.10 install without a progress dialog: say what is happening before it blocks.
+        self.addLog(_("Installing scikit-learn... Slicer does not respond until it is done."))
+        with slicer.util.tryWithErrorDisplay(_("Failed to install scikit-learn."), waitCursor=True):
+            slicer.util.pip_install(" ".join(requirements))
+        available = IsoSimilarityTFLogic.scikitLearnAvailable()
+        self.addLog(_("scikit-learn is installed.") if available else _("scikit-learn could not be installed."))
+        return available
 
     def addLog(self, text: str) -> None:
-        """Show a message of the logic under the Apply button."""
+        """Show a message under the Apply button."""
         self.ui.statusLabel.text = text
         slicer.app.processEvents()
 
@@ -360,7 +506,13 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self._fillClassesTable(design)
         self._showSimilarityPicture(design)
         self.ui.timingsLabel.text = self.logic.timingsText(design) if design is not None else ""
-        for button in (self.ui.resetColorsButton, self.ui.showAllButton, self.ui.exportButton):
+        for button in (
+            self.ui.resetColorsButton,
+            self.ui.showAllButton,
+            self.ui.exportButton,
+            self.ui.exportSegmentationButton,
+            self.ui.savePresetButton,
+        ):
             button.enabled = design is not None
         if design is None:
             self.ui.classesCollapsibleButton.text = _("Classes")
@@ -385,55 +537,56 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         if design is None:
             return
         for row, isoClass in enumerate(design.classes):
-            label = str(isoClass.id + 1)
-            if isoClass.background:
-                label = _("{id} (background)").format(id=label)
-            classItem = qt.QTableWidgetItem(label)
-            classItem.setToolTip(
-                _("Class {id}: rank {rank} by voxel count; exemplar isovalue bin {exemplar}").format(
-                    id=isoClass.id + 1, rank=isoClass.rank, exemplar=isoClass.exemplar_bin
-                )
-            )
-            table.setItem(row, COLUMN_CLASS, classItem)
-
-            colorButton = ctk.ctkColorPickerButton()
-            colorButton.displayColorName = False
-            colorButton.toolTip = _("Colour of the class")
-            colorButton.connect("colorChanged(QColor)", functools.partial(self.onClassColorChanged, isoClass.id))
-            table.setCellWidget(row, COLUMN_COLOR, colorButton)
-
-            opacitySlider = qt.QSlider(qt.Qt.Horizontal)
-            opacitySlider.setRange(0, 100)
-            opacitySlider.setMinimumWidth(80)
-            opacitySlider.connect("valueChanged(int)", functools.partial(self.onClassOpacityChanged, isoClass.id))
-            table.setCellWidget(row, COLUMN_OPACITY, opacitySlider)
-
-            visibleCheckBox = qt.QCheckBox()
-            visibleCheckBox.toolTip = _("Show this class")
-            visibleCheckBox.connect("toggled(bool)", functools.partial(self.onClassVisibleToggled, isoClass.id))
-            table.setCellWidget(row, COLUMN_VISIBLE, self._centered(visibleCheckBox))
-
-            soloCheckBox = qt.QCheckBox()
-            soloCheckBox.toolTip = _("Show this class alone")
-            soloCheckBox.connect("toggled(bool)", functools.partial(self.onClassSoloToggled, isoClass.id))
-            table.setCellWidget(row, COLUMN_SOLO, self._centered(soloCheckBox))
-
-            voxelsItem = qt.QTableWidgetItem(f"{100.0 * isoClass.fraction:.2f} %")
-            voxelsItem.setTextAlignment(qt.Qt.AlignRight | qt.Qt.AlignVCenter)
-            voxelsItem.setToolTip(_("{voxels} voxels").format(voxels=isoClass.voxels))
-            table.setItem(row, COLUMN_VOXELS, voxelsItem)
-
-            ranges = "; ".join(f"{low:.6g} to {high:.6g}" for low, high in isoClass.value_ranges)
-            rangeItem = qt.QTableWidgetItem(ranges)
-            rangeItem.setToolTip(
-                _("Intensity range(s) of the class, in the volume's units: {ranges}").format(ranges=ranges)
-            )
-            table.setItem(row, COLUMN_RANGE, rangeItem)
-
-            self._rowWidgets.append(
-                {"color": colorButton, "opacity": opacitySlider, "visible": visibleCheckBox, "solo": soloCheckBox}
-            )
+            self._rowWidgets.append(self._fillClassRow(table, row, isoClass))
         self._syncClassRows()
+
+    def _fillClassRow(self, table, row: int, isoClass) -> dict:
+        """One row of the table: a class's name, its look (editable) and its extent. Returns the editing widgets."""
+        label = str(isoClass.id + 1)
+        if isoClass.background:
+            label = _("{id} (background)").format(id=label)
+        classItem = qt.QTableWidgetItem(label)
+        classItem.setToolTip(
+            _("Class {id}: rank {rank} by voxel count; exemplar isovalue bin {exemplar}").format(
+                id=isoClass.id + 1, rank=isoClass.rank, exemplar=isoClass.exemplar_bin
+            )
+        )
+        table.setItem(row, COLUMN_CLASS, classItem)
+
+        colorButton = ctk.ctkColorPickerButton()
+        colorButton.displayColorName = False
+        colorButton.toolTip = _("Colour of the class")
+        colorButton.connect("colorChanged(QColor)", functools.partial(self.onClassColorChanged, isoClass.id))
+        table.setCellWidget(row, COLUMN_COLOR, colorButton)
+
+        opacitySlider = qt.QSlider(qt.Qt.Horizontal)
+        opacitySlider.setRange(0, 100)
+        opacitySlider.setMinimumWidth(80)
+        opacitySlider.connect("valueChanged(int)", functools.partial(self.onClassOpacityChanged, isoClass.id))
+        table.setCellWidget(row, COLUMN_OPACITY, opacitySlider)
+
+        visibleCheckBox = qt.QCheckBox()
+        visibleCheckBox.toolTip = _("Show this class")
+        visibleCheckBox.connect("toggled(bool)", functools.partial(self.onClassVisibleToggled, isoClass.id))
+        table.setCellWidget(row, COLUMN_VISIBLE, self._centered(visibleCheckBox))
+
+        soloCheckBox = qt.QCheckBox()
+        soloCheckBox.toolTip = _("Show this class alone")
+        soloCheckBox.connect("toggled(bool)", functools.partial(self.onClassSoloToggled, isoClass.id))
+        table.setCellWidget(row, COLUMN_SOLO, self._centered(soloCheckBox))
+
+        voxelsItem = qt.QTableWidgetItem(f"{100.0 * isoClass.fraction:.2f} %")
+        voxelsItem.setTextAlignment(qt.Qt.AlignRight | qt.Qt.AlignVCenter)
+        voxelsItem.setToolTip(_("{voxels} voxels").format(voxels=isoClass.voxels))
+        table.setItem(row, COLUMN_VOXELS, voxelsItem)
+
+        ranges = "; ".join(f"{low:.6g} to {high:.6g}" for low, high in isoClass.value_ranges)
+        rangeItem = qt.QTableWidgetItem(ranges)
+        rangeItem.setToolTip(
+            _("Intensity range(s) of the class, in the volume's units: {ranges}").format(ranges=ranges)
+        )
+        table.setItem(row, COLUMN_RANGE, rangeItem)
+        return {"color": colorButton, "opacity": opacitySlider, "visible": visibleCheckBox, "solo": soloCheckBox}
 
     def _syncClassRows(self) -> None:
         """Set the table's widgets from the logic's design, without sending edits back."""
@@ -452,47 +605,105 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             for widget in widgets.values():
                 widget.blockSignals(False)
 
+    def _confirmOverwrite(self) -> bool:
+        """Before an edit: if the shown transfer function is no longer the design's, ask before replacing it."""
+        change = self.logic.outside_change()
+        if change is None:
+            return True
+        from IsoSimilarityTFLib import mrml
+
+        volumeName = self.logic.volume_node.GetName() if self.logic.volume_node else ""
+        if change == mrml.CHANGE_OTHER_NODE:
+            reason = _("The Volume Rendering module shows another property node for {volume}.")
+        else:
+            reason = _(
+                "The transfer function of {volume} was changed outside this module (a Volume Rendering preset, "
+                "Shift, or Synchronize with Volumes)."
+            )
+        return slicer.util.confirmYesNoDisplay(
+            reason.format(volume=volumeName)
+            + "\n\n"
+            + _("Show this module's design again, with your change? The other transfer function is replaced."),
+            windowTitle=_("Transfer function changed"),
+        )
+
     def _edit(self, edit) -> None:
         """Apply one edit through the logic (which rewrites the transfer function in place) and refresh the panel."""
-        with slicer.util.tryWithErrorDisplay(_("Failed to update the transfer function.")):
-            edit()
+        if self._confirmOverwrite():
+            with slicer.util.tryWithErrorDisplay(_("Failed to update the transfer function.")):
+                edit()
         self._syncClassRows()
 
     def onClassColorChanged(self, classId: int, color) -> None:
-        self._edit(lambda: self.logic.setClassColor(classId, (color.redF(), color.greenF(), color.blueF())))
+        self._edit(lambda: self.logic.set_class_color(classId, (color.redF(), color.greenF(), color.blueF())))
         self._showSimilarityPicture(self.logic.design)
 
     def onClassOpacityChanged(self, classId: int, value: int) -> None:
-        self._edit(lambda: self.logic.setClassOpacity(classId, value / 100.0))
+        self._edit(lambda: self.logic.set_class_opacity(classId, value / 100.0))
 
     def onClassVisibleToggled(self, classId: int, checked: bool) -> None:
-        self._edit(lambda: self.logic.setClassVisible(classId, checked))
+        self._edit(lambda: self.logic.set_class_visible(classId, checked))
 
     def onClassSoloToggled(self, classId: int, checked: bool) -> None:
-        self._edit(lambda: self.logic.soloClass(classId if checked else None))
+        self._edit(lambda: self.logic.solo_class(classId if checked else None))
 
     def onResetColorsButton(self) -> None:
-        self._edit(self.logic.resetColors)
+        self._edit(self.logic.reset_colors)
         self._showSimilarityPicture(self.logic.design)
 
     def onShowAllButton(self) -> None:
-        self._edit(self.logic.showAllClasses)
+        self._edit(self.logic.show_all_classes)
 
+    # Handing the design over -----------------------------------------------------------------------------------------
     def onExportButton(self) -> None:
         if self.logic.design is None:
             return
-        volume = self.logic.volumeNode
-        fileName = (volume.GetName() if volume else "TransferFunction") + ".vp.json"
+        volume = self.logic.volume_node
+        extension = self.logic.defaultExportExtension()
+        fileName = (volume.GetName() if volume else "TransferFunction") + extension
+        filters = [_("Slicer volume property (*.vp.json)"), _("Legacy Slicer volume property (*.vp)")]
+        if extension == ".vp":  # Slicer 5.8 reads only .vp
+            filters.reverse()
         path = qt.QFileDialog.getSaveFileName(
             self.parent,
             _("Export transfer function"),
             os.path.join(slicer.app.defaultScenePath, fileName),
-            _("Slicer volume property (*.vp.json);;Legacy Slicer volume property (*.vp)"),
+            ";;".join(filters),
         )
         if not path:
             return
         with slicer.util.tryWithErrorDisplay(_("Failed to export the transfer function."), waitCursor=True):
-            self.logic.exportTransferFunction(path)
+            written = self.logic.export_transfer_function(path, extension)
+            self.addLog(_("Transfer function written to {path}").format(path=written))
+
+    def onExportSegmentationButton(self) -> None:
+        if self.logic.design is None:
+            return
+        with slicer.util.tryWithErrorDisplay(_("Failed to export the classes to a segmentation."), waitCursor=True):
+            segmentationNode = self.logic.export_segmentation()
+            count = segmentationNode.GetSegmentation().GetNumberOfSegments()
+            self.addLog(
+                _("Segmentation {name} created with {count} segments.").format(
+                    name=segmentationNode.GetName(), count=count
+                )
+            )
+
+    def onSavePresetButton(self) -> None:
+        if self.logic.design is None:
+            return
+        volume = self.logic.volume_node
+        name = qt.QInputDialog.getText(
+            self.parent,
+            _("Save as preset"),
+            _("Name of the preset in the Volume Rendering module:"),
+            qt.QLineEdit.Normal,
+            _("{volume} classes").format(volume=volume.GetName() if volume else "IsoSimilarityTF"),
+        )
+        if not name or not name.strip():
+            return
+        with slicer.util.tryWithErrorDisplay(_("Failed to add the preset."), waitCursor=True):
+            self.logic.add_preset(name)
+            self.addLog(_("Preset {name} added to the Volume Rendering module.").format(name=name.strip()))
 
     # Similarity picture ----------------------------------------------------------------------------------------------
     def _showSimilarityPicture(self, design) -> None:
@@ -532,33 +743,40 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
 #
 
 
-class IsoSimilarityTFLogic(ScriptedLoadableModuleLogic):
+class IsoSimilarityTFLogic(ScriptedLoadableModuleLogic, DesignSession):
     """Runs the engine on a volume node and keeps its design in sync with the volume rendering.
 
-    Usable without the widget::
+    The work is done by ``IsoSimilarityTFLib.session.DesignSession`` (Qt-free, also tested headless); this class
+    adds the parameter node and the texts of the panel. Usable without the widget::
 
         logic = IsoSimilarityTFLogic()
-        design = logic.run(volumeNode, {"n_bins": 256})
-        logic.setClassOpacity(design.classes[-1].id, 1.0)   # rewrites the transfer function in place
-        logic.exportTransferFunction("/tmp/tf.vp.json")
+        design = logic.run(volumeNode, {"n_bins": 256})     # or start() / finish() to compute in a child process
+        logic.set_class_opacity(design.classes[-1].id, 1.0)   # rewrites the transfer function in place
+        logic.export_transfer_function("/tmp/tf.vp.json")
+        logic.export_segmentation()                           # one segment per shown class
     """
 
     def __init__(self) -> None:
         ScriptedLoadableModuleLogic.__init__(self)
-        self.logCallback = None
-        self.volumeNode = None
-        self.propertyNode = None
-        self.design = None
-        # Similarity matrices of this session's runs by property node ID (the node stores the design without it).
-        self._similarities = {}
+        DesignSession.__init__(self)
 
     def getParameterNode(self):
         return IsoSimilarityTFParameterNode(super().getParameterNode())
 
-    def addLog(self, text: str) -> None:
-        logging.info(text)
-        if self.logCallback:
-            self.logCallback(text)
+    def volume_rendering_logic(self):
+        return slicer.modules.volumerendering.logic()
+
+    def python_executable(self) -> str:
+        """Slicer's own Python, for the design process (as slicer.util._executePythonModule finds it)."""
+        executable = shutil.which("PythonSlicer")
+        if not executable:
+            raise RuntimeError(_("The PythonSlicer executable was not found: cannot start the computation."))
+        return executable
+
+    @staticmethod
+    def defaultExportExtension() -> str:
+        """``.vp.json`` where this Slicer can read it (5.10 and later), else the legacy ``.vp`` (Slicer 5.8)."""
+        return DesignSession.default_export_extension(hasattr(slicer, "vtkMRMLVolumePropertyJsonStorageNode"))
 
     # Running ---------------------------------------------------------------------------------------------------------
     @staticmethod
@@ -596,141 +814,6 @@ class IsoSimilarityTFLogic(ScriptedLoadableModuleLogic):
         with open(path, encoding="utf-8") as file:
             lines = [line.split("#", 1)[0].strip() for line in file]
         return [line for line in lines if line and not line.startswith("-")]
-
-    @staticmethod
-    def volumeValues(volumeNode):
-        """The voxel array (a view, k-j-i order) and the voxel spacing (mm) of a scalar volume node."""
-        if volumeNode is None or volumeNode.GetImageData() is None:
-            raise ValueError(_("The input volume holds no image data."))
-        values = slicer.util.arrayFromVolume(volumeNode)
-        if values.ndim != 3:
-            raise ValueError(
-                _("The input must be a single-component 3-D volume; its voxel array has shape {shape}.").format(
-                    shape=values.shape
-                )
-            )
-        return values, tuple(volumeNode.GetSpacing())
-
-    def run(self, volumeNode, options: Optional[dict] = None, progress=None):
-        """Design a transfer function for the volume and show it in the volume's 3D rendering.
-
-        Args:
-            volumeNode: a ``vtkMRMLScalarVolumeNode``.
-            options: ``design_transfer_function`` keywords (see ``IsoSimilarityTFLib.design.DEFAULT_OPTIONS``).
-            progress: ``progress(stage, fraction, message)``; raising from it cancels (nothing is changed then).
-
-        Returns:
-            The design (also kept as ``self.design``).
-        """
-        from IsoSimilarityTFLib import design_transfer_function, octree_levels
-
-        values, spacing = self.volumeValues(volumeNode)
-        options = dict(options or {})
-        levels = options.get("levels")
-        if levels and min(values.shape) >= 2:
-            available = len(octree_levels(tuple(n - 1 for n in values.shape)))
-            if levels > available:
-                self.addLog(
-                    _("The volume has {available} octree levels; using all of them.").format(available=available)
-                )
-                options["levels"] = None
-        self.addLog(_("Designing a transfer function for {name}...").format(name=volumeNode.GetName()))
-        design = design_transfer_function(values, spacing, progress=progress, **options)
-        logging.info(f"IsoSimilarityTF timings for {volumeNode.GetName()}: {self.timingsText(design)}")
-        self.applyDesign(volumeNode, design)
-        return design
-
-    def volumeRenderingLogic(self):
-        return slicer.modules.volumerendering.logic()
-
-    def applyDesign(self, volumeNode, design):
-        """Show a design in the volume's 3D rendering; returns the volume property node."""
-        from IsoSimilarityTFLib import mrml
-
-        self.propertyNode = mrml.apply_design(volumeNode, design, self.volumeRenderingLogic())
-        self.volumeNode = volumeNode
-        self.design = design
-        if design.similarity is not None:
-            self._similarities.pop(self.propertyNode.GetID(), None)
-            self._similarities[self.propertyNode.GetID()] = design.similarity
-            while len(self._similarities) > MAX_KEPT_SIMILARITIES:  # oldest first
-                self._similarities.pop(next(iter(self._similarities)))
-        return self.propertyNode
-
-    def restoreDesign(self, volumeNode):
-        """Make the design stored with the volume's property node (from an earlier run or a saved scene) current.
-
-        Returns:
-            The design, or None (then no design is current).
-        """
-        from IsoSimilarityTFLib import mrml
-
-        propertyNode = mrml.design_node_of(volumeNode) if volumeNode is not None else None
-        design = mrml.design_of(propertyNode) if propertyNode is not None else None
-        if design is not None and design.similarity is None:
-            design.similarity = self._similarities.get(propertyNode.GetID())
-        self.volumeNode = volumeNode
-        self.propertyNode = propertyNode if design is not None else None
-        self.design = design
-        return design
-
-    def forgetDesign(self) -> None:
-        """Drop the current design and the kept similarity matrices (the scene is being closed)."""
-        self.volumeNode = self.propertyNode = self.design = None
-        self._similarities = {}
-
-    # Editing (no recomputation: the transfer function is rewritten in place) ---------------------------------------
-    def _updateRendering(self) -> None:
-        from IsoSimilarityTFLib import mrml
-
-        if self.propertyNode is None or self.propertyNode.GetScene() is None:
-            raise RuntimeError(_("The volume property node of this design was removed; press Apply again."))
-        mrml.update_property_node(self.propertyNode, self.design)
-
-    def _currentDesign(self):
-        if self.design is None:
-            raise RuntimeError(_("No transfer function has been designed yet."))
-        return self.design
-
-    def setClassColor(self, classId: int, color) -> None:
-        self._currentDesign().set_class(classId, color=color)
-        self._updateRendering()
-
-    def setClassOpacity(self, classId: int, opacity: float) -> None:
-        self._currentDesign().set_class(classId, opacity=opacity)
-        self._updateRendering()
-
-    def setClassVisible(self, classId: int, visible: bool) -> None:
-        self._currentDesign().set_class(classId, visible=visible)
-        self._updateRendering()
-
-    def soloClass(self, classId: Optional[int]) -> None:
-        self._currentDesign().solo(classId)
-        self._updateRendering()
-
-    def showAllClasses(self) -> None:
-        self._currentDesign().show_all()
-        self._updateRendering()
-
-    def resetColors(self) -> None:
-        self._currentDesign().reset_look()
-        self._updateRendering()
-
-    def exportTransferFunction(self, path: str) -> str:
-        """Write the current transfer function: legacy ``.vp`` if the name ends so, else ``.vp.json``.
-
-        Returns:
-            The path written (``.vp.json`` appended when the name has neither extension).
-        """
-        design = self._currentDesign()
-        if path.lower().endswith(".vp"):
-            design.write_vp(path)
-        else:
-            if not path.lower().endswith(".json"):
-                path += ".vp.json"
-            design.write_vp_json(path)
-        self.addLog(_("Transfer function written to {path}").format(path=path))
-        return path
 
     # Reports ---------------------------------------------------------------------------------------------------------
     @staticmethod
@@ -770,7 +853,11 @@ class IsoSimilarityTFLogic(ScriptedLoadableModuleLogic):
 
 
 class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
-    """Tests of the module, on volumes built in memory (nothing is downloaded)."""
+    """Tests of the module, on volumes built in memory (nothing is downloaded).
+
+    The logic checks are the Qt-free functions of IsoSimilarityTFLib.selftest, which ``make test`` also runs on a
+    headless slicer-core scene; here they run in Slicer with this module's logic.
+    """
 
     def setUp(self):
         slicer.mrmlScene.Clear()
@@ -782,6 +869,8 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
             self.test_IsoSimilarityTF_similarity_picture,
             self.test_IsoSimilarityTF_edit_and_export,
             self.test_IsoSimilarityTF_restore,
+            self.test_IsoSimilarityTF_outside_changes,
+            self.test_IsoSimilarityTF_segments_and_preset,
             self.test_IsoSimilarityTF_run,
             self.test_IsoSimilarityTF_cancel,
             self.test_IsoSimilarityTF_widget,
@@ -791,56 +880,20 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
 
     # Helpers -----------------------------------------------------------------------------------------------------
     @staticmethod
-    def _nestedVolume(size: int = 24) -> np.ndarray:
-        """Float volume (k, j, i): background 0, a cube of 100, a ball of 300 inside, a small ball of 600."""
-        k, j, i = np.mgrid[:size, :size, :size].astype(np.float32)
-        centre = (size - 1) / 2.0
-        radius2 = (i - centre) ** 2 + (j - centre) ** 2 + (k - centre) ** 2
-        values = np.zeros((size, size, size), dtype=np.float32)
-        values[3:-3, 3:-3, 3:-3] = 100.0
-        values[radius2 < (size / 4.0) ** 2] = 300.0
-        values[radius2 < (size / 10.0) ** 2] = 600.0
-        return values
-
-    def _volumeNode(self, name: str = "Nested"):
-        volumeNode = slicer.util.addVolumeFromArray(self._nestedVolume(), name=name)
-        volumeNode.SetSpacing(0.5, 0.5, 0.8)
+    def _addVolume(values, spacing, name):
+        volumeNode = slicer.util.addVolumeFromArray(values, name=name)
+        volumeNode.SetSpacing(*spacing)
         return volumeNode
 
-    @staticmethod
-    def _handMadeDesign():
-        """A design made without affinity propagation (no scikit-learn needed): 64 bins over 0..640, 4 classes."""
-        from IsoSimilarityTFLib import TransferFunctionDesign
-        from IsoSimilarityTFLib.classes import build_classes
-        from IsoSimilarityTFLib.tissues import tissue_hierarchy
+    def _check(self, name: str) -> None:
+        """Run one check of IsoSimilarityTFLib.selftest with this module's logic."""
+        from IsoSimilarityTFLib import selftest
 
-        n_bins = 64
-        labels = np.repeat(np.arange(4), [8, 16, 24, 16])
-        exemplars = np.array([4, 16, 36, 56])
-        bin_voxels = np.ones(n_bins, dtype=np.int64)
-        bin_voxels[:8] = 1000
-        edges = np.linspace(0.0, 640.0, n_bins + 1)
-        classes = build_classes(labels, exemplars, bin_voxels, edges, background="largest")
-        similarity = np.where(labels[:, None] == labels[None, :], 1.0, 0.2)
-        design = TransferFunctionDesign(
-            value_range=(0.0, 640.0),
-            n_bins=n_bins,
-            labels=labels,
-            classes=classes,
-            options={"n_bins": n_bins},
-            clustering={"n_iter": 10, "converged": True, "n_classes": 4, "damping": 0.5},
-            timings_s={"quantize": 0.01, "similarity": 0.02, "clustering": 0.03, "classes": 0.0},
-            bin_voxels=bin_voxels,
-            hierarchy=tissue_hierarchy(labels, bin_voxels, [1, 2, 3], similarity),
-            spacing=(0.5, 0.5, 0.8),
-            similarity=similarity,
-        )
-        design.regroup("all")
-        return design
-
-    @staticmethod
-    def _opacityAt(propertyNode, value: float) -> float:
-        return propertyNode.GetVolumeProperty().GetScalarOpacity().GetValue(value)
+        check, needsScikitLearn = selftest.CHECKS[name]
+        if needsScikitLearn and not IsoSimilarityTFLogic.scikitLearnAvailable():
+            self.delayDisplay("scikit-learn is not installed: check skipped")
+            return
+        check(IsoSimilarityTFLogic, self._addVolume)
 
     # Tests -------------------------------------------------------------------------------------------------------
     def test_IsoSimilarityTF_options(self):
@@ -848,7 +901,7 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
         logic = IsoSimilarityTFLogic()
         parameterNode = logic.getParameterNode()
         options = logic.designOptions(parameterNode)
-        from IsoSimilarityTFLib.design import DEFAULT_OPTIONS
+        from IsoSimilarityTFLib.options import DEFAULT_OPTIONS
 
         self.assertTrue(set(options) <= set(DEFAULT_OPTIONS))
         for key in ("n_bins", "crossing", "normalization", "preference", "damping", "max_iter", "convergence_iter"):
@@ -860,12 +913,17 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
         options = logic.designOptions(parameterNode)
         self.assertEqual(options["levels"], 3)
         self.assertEqual(options["preference"], -2.5)
+        with self.assertRaises(ValueError):  # the wrapper validates every write
+            parameterNode.levels = OPTIONS["levels"].maximum + 1
         self.assertEqual(logic.requirements(resourcePath("requirements.txt"))[0].split(">")[0], "scikit-learn")
+        self.assertIn(logic.defaultExportExtension(), (".vp", ".vp.json"))
         self.delayDisplay("Test passed")
 
     def test_IsoSimilarityTF_similarity_picture(self):
         self.delayDisplay("Similarity picture")
-        design = self._handMadeDesign()
+        from IsoSimilarityTFLib.selftest import hand_made_design
+
+        design = hand_made_design()
         picture = IsoSimilarityTFLogic.similarityImage(design, 128)
         self.assertEqual(picture.shape, (128, 128, 3))
         self.assertEqual(picture.dtype, np.uint8)
@@ -873,125 +931,37 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
         self.assertEqual((pixmap.width(), pixmap.height()), (256, 256))
         design.similarity = None
         self.assertIsNone(IsoSimilarityTFLogic.similarityImage(design))
-        self.assertIn("total", IsoSimilarityTFLogic.timingsText(self._handMadeDesign()))
+        self.assertIn("total", IsoSimilarityTFLogic.timingsText(hand_made_design()))
         self.delayDisplay("Test passed")
 
     def test_IsoSimilarityTF_edit_and_export(self):
         self.delayDisplay("Class edits rewrite the transfer function in place; export")
-        import tempfile
-
-        from IsoSimilarityTFLib import read_vp, read_vp_json
-
-        volumeNode = self._volumeNode()
-        logic = IsoSimilarityTFLogic()
-        design = self._handMadeDesign()
-        propertyNode = logic.applyDesign(volumeNode, design)
-        displayNode = logic.volumeRenderingLogic().GetFirstVolumeRenderingDisplayNode(volumeNode)
-        self.assertIsNotNone(displayNode)
-        self.assertIs(displayNode.GetVolumePropertyNode(), propertyNode)
-
-        background = design.background_class
-        self.assertIsNotNone(background)
-        self.assertEqual(self._opacityAt(propertyNode, 40.0), 0.0)  # background hidden
-        top = design.classes[-1]  # bins 48..63: values 480..640
-        volumeProperty = propertyNode.GetVolumeProperty()
-        logic.setClassOpacity(top.id, 0.75)
-        self.assertIs(propertyNode.GetVolumeProperty(), volumeProperty)  # edited in place, not replaced
-        self.assertAlmostEqual(self._opacityAt(propertyNode, 560.0), 0.75, places=6)
-        logic.setClassColor(top.id, (0.0, 0.0, 1.0))
-        rgb = propertyNode.GetVolumeProperty().GetRGBTransferFunction().GetColor(560.0)
-        self.assertAlmostEqual(rgb[2], 1.0, places=6)
-        logic.setClassVisible(top.id, False)
-        self.assertEqual(self._opacityAt(propertyNode, 560.0), 0.0)
-        logic.soloClass(top.id)
-        self.assertAlmostEqual(self._opacityAt(propertyNode, 560.0), 0.75, places=6)
-        self.assertEqual(self._opacityAt(propertyNode, 250.0), 0.0)
-        logic.soloClass(None)
-        logic.showAllClasses()
-        self.assertGreater(self._opacityAt(propertyNode, 250.0), 0.0)
-        self.assertGreater(self._opacityAt(propertyNode, 560.0), 0.0)
-        logic.resetColors()
-        self.assertNotAlmostEqual(propertyNode.GetVolumeProperty().GetRGBTransferFunction().GetColor(560.0)[2], 1.0)
-
-        with tempfile.TemporaryDirectory() as folder:
-            written = logic.exportTransferFunction(os.path.join(folder, "tf"))
-            self.assertTrue(written.endswith(".vp.json"))
-            exported, effectiveRange = read_vp_json(written)
-            self.assertAlmostEqual(exported.GetScalarOpacity().GetValue(560.0), self._opacityAt(propertyNode, 560.0))
-            self.assertEqual(effectiveRange, (0.0, 640.0))
-            legacy = logic.exportTransferFunction(os.path.join(folder, "tf.vp"))
-            self.assertAlmostEqual(
-                read_vp(legacy).GetScalarOpacity().GetValue(250.0), self._opacityAt(propertyNode, 250.0)
-            )
+        self._check("edit_and_export")
         self.delayDisplay("Test passed")
 
     def test_IsoSimilarityTF_restore(self):
-        self.delayDisplay("A design is restored from its property node")
-        volumeNode = self._volumeNode()
-        logic = IsoSimilarityTFLogic()
-        design = self._handMadeDesign()
-        propertyNode = logic.applyDesign(volumeNode, design)
-        logic.setClassOpacity(design.classes[2].id, 0.33)
+        self.delayDisplay("A design is restored from the scene")
+        self._check("restore")
+        self.delayDisplay("Test passed")
 
-        otherLogic = IsoSimilarityTFLogic()
-        restored = otherLogic.restoreDesign(volumeNode)
-        self.assertIsNotNone(restored)
-        self.assertIs(otherLogic.propertyNode, propertyNode)
-        self.assertEqual(len(restored.classes), len(design.classes))
-        self.assertAlmostEqual(restored.classes[2].opacity, 0.33)
-        self.assertIsNone(restored.similarity)  # not stored with the node
-        # The same logic keeps the similarity matrix of its own run, also after showing another volume.
-        self.assertIsNotNone(logic.restoreDesign(volumeNode).similarity)
-        self.assertIsNone(logic.restoreDesign(self._volumeNode("Third")))
-        self.assertIsNotNone(logic.restoreDesign(volumeNode).similarity)
-        # A volume without a design restores nothing.
-        self.assertIsNone(otherLogic.restoreDesign(self._volumeNode("Other")))
-        self.assertIsNone(otherLogic.design)
+    def test_IsoSimilarityTF_outside_changes(self):
+        self.delayDisplay("Volume Rendering presets, Synchronize and another property node are noticed")
+        self._check("outside_changes")
+        self.delayDisplay("Test passed")
+
+    def test_IsoSimilarityTF_segments_and_preset(self):
+        self.delayDisplay("Classes as segments, the design as a preset")
+        self._check("segments_and_preset")
         self.delayDisplay("Test passed")
 
     def test_IsoSimilarityTF_run(self):
-        self.delayDisplay("Full run on a volume built in memory")
-        if not IsoSimilarityTFLogic.scikitLearnAvailable():
-            self.delayDisplay("scikit-learn is not installed: full run skipped")
-            return
-        volumeNode = self._volumeNode()
-        logic = IsoSimilarityTFLogic()
-        messages = []
-        logic.logCallback = messages.append
-        stages = []
-        parameterNode = logic.getParameterNode()
-        parameterNode.bins = 64
-        parameterNode.levels = 99  # more than the volume has: all are used
-        design = logic.run(volumeNode, logic.designOptions(parameterNode), progress=lambda s, f, m: stages.append(s))
-        self.assertGreaterEqual(len(design.classes), 2)
-        self.assertEqual(design.n_bins, 64)
-        self.assertEqual(set(design.timings_s), {"quantize", "similarity", "clustering", "classes"})
-        self.assertEqual(stages[0], "quantize")
-        self.assertIn("classes", stages)
-        self.assertTrue(messages)
-        displayNode = logic.volumeRenderingLogic().GetFirstVolumeRenderingDisplayNode(volumeNode)
-        self.assertIs(displayNode.GetVolumePropertyNode(), logic.propertyNode)
-        self.assertEqual(IsoSimilarityTFLogic.similarityImage(design, 64).shape, (64, 64, 3))
-        # Running again reuses the property node made for the volume.
-        propertyNode = logic.propertyNode
-        logic.run(volumeNode, {"n_bins": 32})
-        self.assertIs(logic.propertyNode, propertyNode)
+        self.delayDisplay("Full run, in Slicer and in a PythonSlicer process")
+        self._check("run")
         self.delayDisplay("Test passed")
 
     def test_IsoSimilarityTF_cancel(self):
         self.delayDisplay("Cancelling leaves the scene untouched")
-        volumeNode = self._volumeNode()
-        logic = IsoSimilarityTFLogic()
-        propertyNodes = slicer.mrmlScene.GetNumberOfNodesByClass("vtkMRMLVolumePropertyNode")
-
-        def cancel(stage, fraction, message):
-            if stage == "similarity":
-                raise IsoSimilarityTFCancelled()
-
-        with self.assertRaises(IsoSimilarityTFCancelled):
-            logic.run(volumeNode, {"n_bins": 32}, progress=cancel)
-        self.assertIsNone(logic.design)
-        self.assertEqual(slicer.mrmlScene.GetNumberOfNodesByClass("vtkMRMLVolumePropertyNode"), propertyNodes)
+        self._check("cancel")
         self.delayDisplay("Test passed")
 
     def test_IsoSimilarityTF_widget(self):
@@ -1000,11 +970,21 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
         if module is None:
             self.delayDisplay("Module not loaded in this application: widget test skipped")
             return
+        from IsoSimilarityTFLib.selftest import SPACING, hand_made_design, nested_volume
+
         widget = module.widgetRepresentation().self()
-        volumeNode = self._volumeNode()
-        widget.logic.applyDesign(volumeNode, self._handMadeDesign())
-        otherVolume = self._volumeNode("Other")
+        volumeNode = self._addVolume(nested_volume(), SPACING, "Nested")
+        widget.logic.apply(volumeNode, hand_made_design())
+        otherVolume = self._addVolume(nested_volume(), SPACING, "Other")
         widget.enter()
+        # Re-entering keeps the one GUI connection and the user's choices (Slicer 5.8 reset them, Slicer#7545).
+        widget._parameterNode.crossing = "strict"
+        widget._parameterNode.background = "lowest"
+        widget.exit()
+        widget.enter()
+        self.assertEqual(widget._parameterNode.crossing, "strict")
+        self.assertEqual(widget._parameterNode.background, "lowest")
+        self.assertEqual(widget.ui.crossingComboBox.currentText, choiceLabels()["crossing"]["strict"])
         widget._parameterNode.inputVolume = otherVolume
         self.assertEqual(widget.ui.classesTableWidget.rowCount, 0)
         widget._parameterNode.inputVolume = volumeNode
@@ -1012,7 +992,9 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
         # An edit in the table reaches the volume property.
         top = widget.logic.design.classes[-1]
         widget._rowWidgets[top.id]["opacity"].value = 40
-        self.assertAlmostEqual(self._opacityAt(widget.logic.propertyNode, 560.0), 0.40, places=6)
+        self.assertAlmostEqual(
+            widget.logic.property_node.GetVolumeProperty().GetScalarOpacity().GetValue(560.0), 0.40, places=6
+        )
         widget._rowWidgets[top.id]["solo"].checked = True
         self.assertEqual(widget.logic.design.solo_class, top.id)
         self.assertFalse(widget._rowWidgets[0]["visible"].enabled)
@@ -1030,5 +1012,7 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
         selectionNode.SetActiveVolumeID(None)
         selectionNode.SetActiveVolumeID(otherVolume.GetID())
         self.assertIs(widget._parameterNode.inputVolume, volumeNode)
+        widget._parameterNode.crossing = "inclusive"
+        widget._parameterNode.background = "largest"
         widget.exit()
         self.delayDisplay("Test passed")

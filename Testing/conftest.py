@@ -6,7 +6,7 @@ import pytest
 
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 
-from IsoSimilarityTFLib import rendering
+from isosimtf import rendering
 
 
 @pytest.fixture()

@@ -134,7 +134,7 @@ def test_kmedoids_isovalues_leaves_empty_isovalues_out_and_fills_them_from_neigh
 
 def test_kmedoids_isovalues_agrees_with_the_library_on_a_small_volume():
     from IsoSimilarityTFLib import design_transfer_function
-    from IsoSimilarityTFLib.phantom import head_phantom
+    from isosimtf.phantom import head_phantom
 
     phantom = head_phantom(32, seed=0)
     design = design_transfer_function(phantom.values, phantom.spacing)

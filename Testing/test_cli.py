@@ -1,4 +1,4 @@
-"""Tests of the ``isosimtf`` command (IsoSimilarityTFLib.cli) and its output folder (IsoSimilarityTFLib.report)."""
+"""Tests of the ``isosimtf`` command (isosimtf.cli) and its output folder (isosimtf.run, isosimtf.outputs)."""
 
 from __future__ import annotations
 
@@ -8,21 +8,28 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 
-from test_volume_io import _rotation
+from test_volume_io import _right_handed, _rotation
+from volume_writers import write_volume
 
-from IsoSimilarityTFLib import __version__, cli, report
-from IsoSimilarityTFLib.design import TransferFunctionDesign
-from IsoSimilarityTFLib.phantom import head_phantom
-from IsoSimilarityTFLib.rendering import slicer_core_available
-from IsoSimilarityTFLib.volume_io import Volume, write_volume
+import IsoSimilarityTFLib
+import isosimtf
+from IsoSimilarityTFLib import __version__
+from IsoSimilarityTFLib.clustering import unconverged_advice
+from IsoSimilarityTFLib.design import TransferFunctionDesign, design_transfer_function
+from isosimtf import cli, console, figures, formatting, run
+from isosimtf.phantom import head_phantom
+from isosimtf.rendering import slicer_core_available
+from isosimtf.volume_io import Volume
 
-LIB_DIR = Path(report.__file__).resolve().parents[1]
+# The folders that hold the two packages, for a subprocess that runs without the editable install.
+PACKAGE_DIRS = [Path(package.__file__).resolve().parents[1] for package in (IsoSimilarityTFLib, isosimtf)]
 
 needs_slicer = pytest.mark.skipif(
     not slicer_core_available(), reason="slicer-core (Slicer's Qt-free MRML libraries) is not installed"
@@ -54,10 +61,11 @@ def read_png(path: Path) -> np.ndarray:
     return np.ascontiguousarray(pixels[..., :3])
 
 
-def _small_volume(size: int = 32) -> Volume:
-    """A small head phantom with anisotropic spacing and an oblique, left-handed orientation."""
+def _small_volume(size: int = 32, left_handed: bool = True) -> Volume:
+    """A small head phantom with anisotropic spacing and an oblique orientation (left-handed by default)."""
     directions = _rotation(20.0, 2) @ _rotation(-10.0, 0)
-    directions[:, 2] *= -1.0
+    if left_handed:
+        directions[:, 2] *= -1.0
     return Volume(head_phantom(size, seed=3).values, (7.5, 6.5, 8.0), (12.5, -30.0, 4.0), directions, "head")
 
 
@@ -130,7 +138,7 @@ def test_outputs_exist_and_follow_the_schema(rendered: Path) -> None:
     assert {"n_iter", "converged", "n_classes"} <= set(document["clustering"])
     assert document["clustering"]["converged"] is True
     assert document["clustering"]["n_classes"] == len(document["classes"]) >= 2
-    stages = {"load", "quantize", "similarity", "clustering", "classes", "write", "total"}
+    stages = {"read", "quantize", "similarity", "clustering", "classes", "write", "total"}
     if slicer_core_available():
         stages.add("render")
     assert stages <= set(document["timings_s"])
@@ -147,7 +155,8 @@ def test_outputs_exist_and_follow_the_schema(rendered: Path) -> None:
     assert source["path"].endswith("head.nrrd") and source["name"] == "head"
     assert source["shape"] == [48, 48, 48] and source["dimensions"] == [48, 48, 48]
     np.testing.assert_allclose(source["spacing"], (7.5, 6.5, 8.0), atol=1e-6)
-    np.testing.assert_allclose(source["ijk_to_ras"], _small_volume(48).ijk_to_ras(), atol=1e-6)
+    # Slicer's reader gives a left-handed volume a right-handed index frame (slices reversed).
+    np.testing.assert_allclose(source["ijk_to_ras"], _right_handed(_small_volume(48)).ijk_to_ras(), atol=1e-5)
     # The design reloads from classes.json.
     design = TransferFunctionDesign.from_dict(document)
     assert [int(v) for v in design.labels] == document["labels"]
@@ -172,7 +181,7 @@ def test_pictures_are_readable_and_not_blank(rendered: Path) -> None:
     shown = [c for c in _load(rendered)["classes"] if c["visible"]]
     tile = RENDER_SIZE // 2
     assert grid.shape[1] >= 2 * tile and grid.shape[0] >= tile
-    columns = (grid.shape[1] - report.GRID_GAP) // (tile + report.GRID_GAP)
+    columns = (grid.shape[1] - figures.GRID_GAP) // (tile + figures.GRID_GAP)
     assert columns * ((len(shown) + columns - 1) // columns) >= len(shown)
     assert np.count_nonzero(grid.max(axis=2) > 200) > 50  # label text
 
@@ -222,7 +231,7 @@ def _assert_same_world_volume(volume_node, expected: Volume) -> None:
 @needs_slicer
 def test_saved_scene_reloads_with_geometry_and_transfer_function(rendered: Path) -> None:
     from IsoSimilarityTFLib.mrml import design_of
-    from IsoSimilarityTFLib.rendering import HeadlessSlicer
+    from isosimtf.rendering import HeadlessSlicer
 
     document = _load(rendered)
     scene_file = rendered / "scene" / "scene.mrml"
@@ -268,7 +277,9 @@ def _write_dicom_series(volume: Volume, folder: Path) -> None:
 
 
 def test_every_input_format_gives_the_same_classes(tmp_path: Path, capfd) -> None:
-    volume = _small_volume(24)
+    # Right-handed: Slicer's reader reverses the slices of a left-handed volume, .npy and .vti readers do not, and the
+    # octree tiles from index 0, so a reversed volume has other coarse cells.
+    volume = _small_volume(24, left_handed=False)
     sources = []
     for suffix in (".nrrd", ".nhdr", ".mha", ".mhd", ".nii", ".nii.gz", ".vti", ".npy"):
         path = tmp_path / f"head{suffix}"
@@ -336,21 +347,15 @@ def test_progress_lines_and_summary(tmp_path: Path, capfd) -> None:
     code, out, err = _run(["phantom", "-o", tmp_path / "out", "--phantom-size", 24, "--no-render"], capfd)
     assert code == 0
     lines = err.splitlines()
-    assert [line.split()[0] for line in lines] == [f"[{i}/6]" for i in range(1, 7)]
-    assert [line.split()[1] for line in lines] == [
-        "reading",
-        "quantizing",
-        "similarity",
-        "clustering",
-        "classes",
-        "writing",
-    ]
+    total = len(run.STAGES) - 1  # no render stage
+    assert [line.split()[0] for line in lines] == [f"[{i}/{total}]" for i in range(1, total + 1)]
+    assert [line.split()[1] for line in lines] == list(run.STAGES[:-1])
     document = _load(tmp_path / "out")
     assert "rank" in out and "intensity range(s)" in out and "colour" in out
     assert "background" in out and "affinity propagation" in out
     assert f"{document['clustering']['n_iter']} iterations" in out
     for item in document["classes"]:
-        assert report.color_hex(item["color"]) in out
+        assert formatting.color_hex(item["color"]) in out
     assert "similarity" in out.split("time (s):")[1]
     assert str((tmp_path / "out").resolve()) in out
 
@@ -361,7 +366,7 @@ def test_progress_rewrites_the_line_on_a_terminal() -> None:
             return True
 
     stream = Terminal()
-    printer = report.ProgressPrinter(3, stream=stream)
+    printer = console.ProgressPrinter(3, stream=stream)
     printer.stage("similarity")
     printer.update("level 1 of 2")
     printer.update("level 2 of 2")
@@ -372,8 +377,8 @@ def test_progress_rewrites_the_line_on_a_terminal() -> None:
     assert "\r\x1b[K[1/3] similarity: level 2 of 2\n[2/3] clustering\n" in text
 
     quiet = Terminal()
-    printer = report.ProgressPrinter(3, stream=quiet, quiet=True)
-    printer.stage("reading")
+    printer = console.ProgressPrinter(3, stream=quiet, quiet=True)
+    printer.stage("read")
     printer.update("x")
     printer.finish()
     assert quiet.getvalue() == ""
@@ -501,7 +506,7 @@ def test_missing_arguments_and_output_file(tmp_path: Path, capfd) -> None:
     not_a_folder = tmp_path / "file"
     not_a_folder.write_text("x")
     code, _, err = _run(["phantom", "-o", not_a_folder, "--phantom-size", 16, "--no-render"], capfd)
-    assert code == 2 and err.strip() == f"isosimtf: error: the output path '{not_a_folder}' exists and is not a folder"
+    assert code == 2 and err.strip() == f"isosimtf: error: the output path '{not_a_folder}' is a file, not a folder"
 
 
 def test_unconverged_affinity_propagation_is_a_processing_error(tmp_path: Path, capfd) -> None:
@@ -524,8 +529,108 @@ def test_unconverged_affinity_propagation_is_a_processing_error(tmp_path: Path, 
     assert "Traceback" not in err and out == ""
 
 
+def test_unconverged_advice_never_suggests_what_was_given(tmp_path: Path, capfd) -> None:
+    argv = ["phantom", "-o", tmp_path / "out", "--phantom-size", 24, "--no-render", "-q", "--unconverged", "error"]
+    code, _, err = _run([*argv, "--max-iter", 2, "--damping", "0.95"], capfd)
+    assert code == 1 and "raise max_iter (e.g. 1000)" in err and "damping" not in err.split(";", 1)[1]
+    assert "raise max_iter" not in unconverged_advice(100_000, [0.5, 0.7, 0.9])  # the table's largest
+    assert unconverged_advice(1000, [0.5]).startswith("raise max_iter (e.g. 5000)")  # before: "e.g. 1000" again
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Issue 11: limits, the output folder (never delete what we did not write), warnings for a useless result
+# ---------------------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("options", "expected"),
+    [
+        (["--size", "40000"], "argument --size: must be from 32 to 4096, got 40000"),  # before: segfault
+        (["--phantom-size", "2000"], "argument --phantom-size: must be from 8 to 512, got 2000"),  # before: 111 s
+        (["--range", "5000", "6000"], "value_range [5000, 6000] lies outside the volume's values"),  # before: exit 0
+    ],
+    ids=["size", "phantom-size", "range-outside"],
+)
+def test_limits(tmp_path: Path, capfd, options: list[str], expected: str) -> None:
+    code, _, err = _run(["phantom", "--phantom-size", 16, "-o", tmp_path / "out", "-q", *options], capfd)
+    assert code == 2 and len(err.splitlines()) == 1 and expected in err, err
+    assert not (tmp_path / "out").exists()  # a failing run creates no output folder
+
+
+def test_negative_numbers_in_scientific_notation_are_values(tmp_path: Path, capfd) -> None:
+    """Before: 'argument --range: expected 2 arguments'."""
+    code, _, err = _run(["phantom", "--phantom-size", 16, "-o", tmp_path / "out", "-q", "--no-render",
+                         "--range", "-1e3", "3e3", "--preference", "-1e-1"], capfd)  # fmt: skip
+    assert code == 0, err
+    document = _load(tmp_path / "out")
+    assert document["value_range"] == [-1000.0, 3000.0] and document["options"]["preference"] == -0.1
+
+
+def test_output_path_is_checked_before_any_work(tmp_path: Path, capfd) -> None:
+    a_file = tmp_path / "file"
+    a_file.write_text("x")
+    for outdir, expected in (("", "the output folder is empty"), (a_file / "out", "lies under")):
+        code, _, err = _run(["phantom", "--phantom-size", 16, "-o", outdir, "--no-render"], capfd)
+        assert code == 2 and err.startswith("isosimtf: error: ") and expected in err, err
+        assert "[1/" not in err  # refused before reading the input
+
+
+def test_failing_run_leaves_no_folder(tmp_path: Path, capfd) -> None:
+    bad = tmp_path / "bad.npy"
+    bad.write_bytes(b"not a numpy file")
+    code, _, _ = _run([bad, "-o", tmp_path / "new" / "out", "--no-render", "-q"], capfd)
+    assert code == 2 and not (tmp_path / "new").exists()
+
+
+@needs_slicer
+def test_reruns_replace_only_our_files(tmp_path: Path, capfd) -> None:
+    outdir = tmp_path / "out"
+    (outdir / "scene").mkdir(parents=True)
+    (outdir / "scene" / "my notes.txt").write_text("mine")
+    (outdir / "my.png").write_text("mine")
+    code, _, err = _run(["phantom", "--phantom-size", 24, "--size", 64, "-o", outdir, "-q"], capfd)
+    assert code == 0 and err == "", err  # nothing from VTK or Slicer on stderr either
+    written = _load(outdir)["written"]
+    assert {"render.png", "classes.png", "scene/scene.mrml", "classes.json"} <= set(written)
+    assert all((outdir / name).is_file() for name in written)
+    assert (outdir / "scene" / "my notes.txt").read_text() == "mine"  # before: scene/ deleted wholesale
+
+    code, _, err = _run(["phantom", "--phantom-size", 24, "--no-render", "-o", outdir, "-q"], capfd)
+    assert code == 0
+    assert err.startswith("isosimtf: warning: removed") and "render.png" in err and "scene/scene.mrml" in err
+    assert not (outdir / "render.png").exists() and not (outdir / "scene" / "Data").exists()
+    assert (outdir / "scene" / "my notes.txt").is_file() and (outdir / "my.png").is_file()
+    assert set(_load(outdir)["written"]) == set(DATA_FILES)
+
+
+def test_useless_results_are_refused_or_warned(tmp_path: Path, capfd) -> None:
+    big = tmp_path / "int64.npy"  # before: exit 0, every voxel in bin 0, one class
+    np.save(big, np.int64(2**62) + np.random.default_rng(1).integers(0, 1000, (16, 16, 16)))
+    code, _, err = _run([big, "-o", tmp_path / "a", "--no-render", "-q"], capfd)
+    assert code == 2 and "subtract an offset" in err
+    labels = tmp_path / "labels.npy"  # before: exit 0, no word about it
+    volume = np.zeros((24, 24, 24), np.uint8)
+    volume[6:18, 6:18, 6:18], volume[9:15, 9:15, 9:15] = 1, 2
+    np.save(labels, volume)
+    code, _, err = _run([labels, "-o", tmp_path / "b", "--no-render", "-q"], capfd)
+    assert code == 0 and "isosimtf: warning: the volume holds at most 3 distinct integer values" in err
+    assert "label map" in err
+    design = design_transfer_function(head_phantom(16).values)
+    for item in design.classes:
+        design.set_class(item.id, visible=False)
+    (warning,) = run._design_warnings(SimpleNamespace(design=design))
+    assert "the transfer function shows nothing" in warning
+
+
+def test_many_bins_warn_that_clustering_is_slow() -> None:
+    info = {"value_min": -1000.0, "value_max": 3000.0, "dtype": "int16"}
+    assert run._input_warnings(info, 256) == []
+    (warning,) = run._input_warnings(info, 4096)
+    assert "4096 isovalues may take many minutes" in warning
+
+
 def test_without_slicer_core_rendering_is_skipped_with_a_warning(tmp_path: Path, capfd, monkeypatch) -> None:
-    monkeypatch.setattr(report, "slicer_core_available", lambda: False)
+    monkeypatch.setattr(run, "slicer_core_available", lambda: False)
     code, _, err = _run(["phantom", "-o", tmp_path / "out", "--phantom-size", 16, "-q"], capfd)
     assert code == 0
     assert err.startswith("isosimtf: warning: slicer-core is not installed") and len(err.splitlines()) == 1
@@ -539,13 +644,13 @@ def test_without_slicer_core_rendering_is_skipped_with_a_warning(tmp_path: Path,
 
 
 def _env() -> dict[str, str]:
-    return dict(os.environ, PYTHONPATH=os.pathsep.join([str(LIB_DIR), os.environ.get("PYTHONPATH", "")]))
+    return dict(os.environ, PYTHONPATH=os.pathsep.join([*map(str, PACKAGE_DIRS), os.environ.get("PYTHONPATH", "")]))
 
 
 def test_no_render_does_not_import_slicer_core(tmp_path: Path) -> None:
     code = (
         "import sys\n"
-        "from IsoSimilarityTFLib.cli import main\n"
+        "from isosimtf.cli import main\n"
         f"assert main(['phantom', '-o', {str(tmp_path / 'out')!r}, '--phantom-size', '16', '--no-render', '-q']) == 0\n"
         "loaded = sorted(m for m in sys.modules if m == 'slicer' or m.startswith(('slicer.', 'slicer_core')))\n"
         "assert not loaded, loaded\n"
@@ -562,8 +667,8 @@ def test_console_script(tmp_path: Path) -> None:
     argv = [str(script), "phantom", "-o", str(outdir), "--phantom-size", "32", "--size", "64"]
     result = subprocess.run(argv, capture_output=True, text=True, env=_env(), timeout=300)
     assert result.returncode == 0, result.stderr
-    total = 7 if slicer_core_available() else 6
-    assert result.stderr.startswith(f"[1/{total}] reading phantom")
+    total = len(run.STAGES) if slicer_core_available() else len(run.STAGES) - 1
+    assert result.stderr.startswith(f"[1/{total}] read phantom")
     assert "Traceback" not in result.stderr
     assert "rank" in result.stdout and "output:" in result.stdout
     for name in DATA_FILES + (RENDER_FILES if slicer_core_available() else ()):
@@ -587,11 +692,11 @@ def test_console_script(tmp_path: Path) -> None:
 def test_class_grid_layout_and_labels() -> None:
     tiles = [np.zeros((40, 50, 3), np.uint8) for _ in range(5)]
     labels = [("#1  12.5% of voxels", "-10 .. 30")] * 5
-    grid = report.class_grid(tiles, labels, [[1.0, 0.0, 0.0]] * 5)
-    assert grid.dtype == np.uint8 and grid.shape[1] == 3 * 50 + 4 * report.GRID_GAP
+    grid = figures.class_grid(tiles, labels, [[1.0, 0.0, 0.0]] * 5)
+    assert grid.dtype == np.uint8 and grid.shape[1] == 3 * 50 + 4 * figures.GRID_GAP
     assert np.any(np.all(grid == (255, 0, 0), axis=2))  # colour swatch
     assert np.count_nonzero(grid.max(axis=2) > 150) > 40  # text
-    assert report.format_percent(0.00001) == "<0.1" and report.format_percent(0.5) == "50.0"
-    assert report.format_ranges([[0.0, 1.0], [2.0, 3.0]], 1) == "0.0 .. 1.0, 2.0 .. 3.0"
-    assert report.value_decimals((-1024.0, 3071.0), 256) == 0 and report.value_decimals((0.0, 1.0), 256) == 3
-    assert report.color_hex([1.0, 0.5, 0.0]) == "#ff8000"
+    assert formatting.format_percent(0.00001) == "<0.1" and formatting.format_percent(0.5) == "50.0"
+    assert formatting.format_ranges([[0.0, 1.0], [2.0, 3.0]], 1) == "0.0 .. 1.0, 2.0 .. 3.0"
+    assert formatting.value_decimals((-1024.0, 3071.0), 256) == 0 and formatting.value_decimals((0.0, 1.0), 256) == 3
+    assert formatting.color_hex([1.0, 0.5, 0.0]) == "#ff8000"

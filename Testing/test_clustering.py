@@ -123,3 +123,27 @@ def test_bad_matrices():
         cluster_isovalues(np.zeros((3, 4)))
     with pytest.raises(ValueError, match="finite"):
         cluster_isovalues(np.full((3, 3), np.nan))
+
+
+@pytest.mark.parametrize(
+    ("arguments", "message"),
+    [
+        ({"damping": float("nan")}, "damping must be a number from 0.5 to 0.99"),
+        ({"damping": None}, "damping must be given"),  # before: TypeError from '<='
+        ({"max_iter": None}, "max_iter must be a positive integer"),
+        ({"max_iter": 10.5}, "max_iter must be a positive integer"),
+        ({"empty_isovalues": [-1]}, r"empty_isovalues must lie in \[0, 8\)"),  # before: bin 7 silently left out
+        ({"empty_isovalues": [1.5]}, "empty_isovalues must be a sequence of integer isovalues"),
+    ],
+)
+def test_bad_arguments_are_named(arguments, message):
+    with pytest.raises(ValueError, match=message):
+        cluster_isovalues(block_similarity([4, 4]), **arguments)
+
+
+def test_similarity_must_be_what_similarity_matrix_gives():
+    """Before: an asymmetric or > 1 matrix was clustered without a word."""
+    with pytest.raises(ValueError, match="symmetric"):
+        cluster_isovalues(np.triu(block_similarity([4, 4])))
+    with pytest.raises(ValueError, match=r"in \[0, 1\]"):
+        cluster_isovalues(2 * block_similarity([4, 4]))

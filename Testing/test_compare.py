@@ -277,7 +277,7 @@ def _blob(dtype, high: float) -> np.ndarray:
 
 @pytest.mark.parametrize(("dtype", "high", "picked"), [(np.uint8, 250, "US-Fetal"), (np.int16, 400, "MR-Default")])
 def test_first_click_is_what_slicers_logic_recommends(tmp_path, dtype, high, picked):
-    rendering = pytest.importorskip("IsoSimilarityTFLib.rendering")
+    rendering = pytest.importorskip("isosimtf.rendering")
     if not rendering.slicer_core_available():
         pytest.skip("slicer-core is not installed")
     compare = _load("compare")

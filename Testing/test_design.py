@@ -7,7 +7,7 @@ import pytest
 
 from IsoSimilarityTFLib import ClusteringError, TransferFunctionDesign, design_transfer_function, quantize
 from IsoSimilarityTFLib.classes import build_classes, runs
-from IsoSimilarityTFLib.phantom import head_phantom
+from isosimtf.phantom import head_phantom
 
 
 @pytest.fixture(scope="module")

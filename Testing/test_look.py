@@ -112,7 +112,7 @@ def test_gradient_opacity_is_an_option_off_by_default():
     off = design_transfer_function(values, (1.0, 1.0, 1.0))
     gradient = off.volume_property().GetGradientOpacity()
     assert off.gradient_ramp_top is None and gradient.GetValue(0.0) == gradient.GetValue(500.0) == 1.0
-    on = design_transfer_function(values, (1.0, 1.0, 1.0), gradient_opacity=True)
+    on = design_transfer_function(values, (1.0, 1.0, 1.0), gradient_opacity="auto")
     top = on.gradient_ramp_top
     gradient = on.volume_property().GetGradientOpacity()
     assert top > 0 and gradient.GetValue(0.0) == 0.0 and gradient.GetValue(top) == pytest.approx(1.0)
@@ -121,7 +121,7 @@ def test_gradient_opacity_is_an_option_off_by_default():
 
 def test_designs_fit_the_gpu_lookup_table():
     """VTK's own estimate (EstimateMinNumberOfSamples, as the GPU ray caster computes it) stays at 4096 or less."""
-    from IsoSimilarityTFLib.rendering import lookup_table_width
+    from isosimtf.rendering import lookup_table_width
 
     rng = np.random.default_rng(3)
     values = (np.indices((24, 24, 24)).sum(axis=0) * 60 - 1500 + rng.normal(0, 30, (24, 24, 24))).astype(np.int16)

@@ -1,11 +1,12 @@
-"""apply_design on real Slicer MRML (slicer-core, headless): nodes, user work kept, scene save/reload, rendering."""
+"""The design in real Slicer MRML (slicer-core, headless): nodes, user work kept, the Volume Rendering module's own
+actions, scene save/reload (also of older scenes), rendering, classes as segments, the design as a preset."""
 
 import numpy as np
 import pytest
 
-from IsoSimilarityTFLib import design_transfer_function
-from IsoSimilarityTFLib.mrml import DESIGN_ATTRIBUTE, apply_design, design_node_of, design_of, update_property_node
-from IsoSimilarityTFLib.phantom import head_phantom
+from IsoSimilarityTFLib import design_transfer_function, mrml
+from IsoSimilarityTFLib.mrml import apply_design, design_node_of, design_of, update_property_node
+from isosimtf.phantom import head_phantom
 
 
 @pytest.fixture(scope="module")
@@ -52,6 +53,9 @@ def test_apply_creates_and_attaches_a_named_property_node(slicer_app, phantom, p
     assert display is not None and display.GetVolumePropertyNode() is node and display.GetVisibility()
     assert not display.GetFollowVolumeDisplayNode()
     assert node.GetName() == "Head IsoSimilarityTF"
+    # No unused default property node next to ours (CreateDefaultVolumeRenderingNodes would leave one).
+    assert property_nodes(slicer_app.scene) == [node]
+    assert node.GetVolumeProperty().GetScalarOpacityUnitDistance() == pytest.approx(phantom_design.unit_distance)
     assert node.GetEffectiveRange() == pytest.approx(volume.GetImageData().GetScalarRange())
     assert design_node_of(volume) is node
     assert_node_shows(node, phantom_design)
@@ -69,7 +73,8 @@ def test_users_property_node_is_kept_and_rerun_reuses_ours(slicer_app, phantom, 
     first = apply_design(volume, phantom_design, slicer_app.volume_rendering_logic)
     after_first = slicer_app.scene.GetNumberOfNodes()
     second = apply_design(volume, phantom_design, slicer_app.volume_rendering_logic)
-    assert second is first and slicer_app.scene.GetNumberOfNodes() == after_first == n_nodes + 1
+    # Our property node and the design node, once.
+    assert second is first and slicer_app.scene.GetNumberOfNodes() == after_first == n_nodes + 2
     assert users in property_nodes(slicer_app.scene)
     assert [users.GetVolumeProperty().GetScalarOpacity().GetValue(x) for x in (-1000.0, 123.0, 500.0)] == before
     assert display.GetVolumePropertyNode() is first
@@ -107,7 +112,7 @@ def test_uint8_volume(slicer_app):
 
 
 def test_scene_saved_and_reopened_keeps_tf_and_design(tmp_path, slicer_app, phantom, phantom_design):
-    from IsoSimilarityTFLib.rendering import HeadlessSlicer
+    from isosimtf.rendering import HeadlessSlicer
 
     volume = add_phantom(slicer_app, phantom)
     design = type(phantom_design).from_json(phantom_design.to_json())
@@ -122,7 +127,8 @@ def test_scene_saved_and_reopened_keeps_tf_and_design(tmp_path, slicer_app, phan
         assert reopened.scene.Connect() == 1
         volume_back = reopened.scene.GetFirstNodeByName("Head")
         node = design_node_of(volume_back)
-        assert node is not None and node.GetAttribute(DESIGN_ATTRIBUTE)
+        assert node is not None and mrml.design_text_node(volume_back) is not None
+        assert not mrml.modified_outside(volume_back)
         display = reopened.volume_rendering_logic.GetFirstVolumeRenderingDisplayNode(volume_back)
         assert display.GetVolumePropertyNode() is node
         restored = design_of(node)
@@ -171,3 +177,266 @@ def test_render_uses_our_property_and_follows_class_edits(slicer_app, phantom, p
     design.solo(None)
     update_property_node(node, design)
     assert np.abs(slicer_app.render().astype(int) - hidden).mean() < 1e-9
+
+
+# The design's own node: the Volume Rendering module's actions cannot erase it, and they are noticed ---------------
+def fresh(design):
+    return type(design).from_json(design.to_json())
+
+
+def test_design_lives_in_its_own_node_referenced_from_the_volume(slicer_app, phantom, phantom_design):
+    volume = add_phantom(slicer_app, phantom)
+    node = apply_design(volume, phantom_design, slicer_app.volume_rendering_logic)
+    text_node = mrml.design_text_node(volume)
+    assert text_node.IsA("vtkMRMLTextNode") and text_node.GetNodeReference(mrml.PROPERTY_ROLE) is node
+    assert mrml.design_of_volume(volume).to_dict() == phantom_design.to_dict()
+    assert not node.GetAttribute(mrml.LEGACY_DESIGN_ATTRIBUTE)
+    assert mrml.outside_change(volume) is None and not mrml.modified_outside(volume)
+
+
+def test_a_preset_copied_into_the_property_node_keeps_the_design_and_is_noticed(slicer_app, phantom, phantom_design):
+    volume = add_phantom(slicer_app, phantom)
+    design = fresh(phantom_design)
+    node = apply_design(volume, design, slicer_app.volume_rendering_logic)
+    # What the Volume Rendering module's preset menu does (qSlicerVolumeRenderingPresetComboBox::applyPreset).
+    node.CopyContent(slicer_app.volume_rendering_logic.GetPresetByName("US-Fetal"))
+    assert mrml.design_of_volume(volume).to_dict()["classes"] == design.to_dict()["classes"]
+    assert mrml.outside_change(volume) == mrml.CHANGE_EDITED and mrml.modified_outside(volume)
+    # Writing the design again (after the user said yes) brings it back, in the same node.
+    design.set_class(design.classes[-1].id, opacity=0.3)
+    assert mrml.update_design(volume, design, slicer_app.volume_rendering_logic) is node
+    assert not mrml.modified_outside(volume)
+    assert_node_shows(node, design)
+    assert node.GetVolumeProperty().GetScalarOpacityUnitDistance() == pytest.approx(design.unit_distance)
+
+
+def test_synchronize_with_volumes_and_shift_are_noticed(slicer_app, phantom, phantom_design):
+    volume = add_phantom(slicer_app, phantom)
+    node = apply_design(volume, phantom_design, slicer_app.volume_rendering_logic)
+    display = slicer_app.volume_rendering_logic.GetFirstVolumeRenderingDisplayNode(volume)
+    # "Synchronize with Volumes module" (qSlicerVolumeRenderingModuleWidget::synchronizeScalarDisplayNode).
+    slicer_app.volume_rendering_logic.CopyDisplayToVolumeRenderingDisplayNode(display)
+    assert mrml.outside_change(volume) == mrml.CHANGE_EDITED
+    mrml.update_design(volume, phantom_design, slicer_app.volume_rendering_logic)
+    assert not mrml.modified_outside(volume)
+    # Shift moves every point of the functions in place.
+    opacity = node.GetVolumeProperty().GetScalarOpacity()
+    values = [0.0] * 4
+    opacity.GetNodeValue(3, values)
+    values[0] += 1.0
+    opacity.SetNodeValue(3, values)
+    assert mrml.modified_outside(volume)
+
+
+def test_another_property_node_shown_is_noticed_and_the_design_can_be_shown_again(slicer_app, phantom, phantom_design):
+    volume = add_phantom(slicer_app, phantom)
+    ours = apply_design(volume, phantom_design, slicer_app.volume_rendering_logic)
+    display = slicer_app.volume_rendering_logic.GetFirstVolumeRenderingDisplayNode(volume)
+    other = slicer_app.scene.AddNewNodeByClass("vtkMRMLVolumePropertyNode", "Mine")
+    display.SetAndObserveVolumePropertyNodeID(other.GetID())
+    assert mrml.displayed_property_node(volume) is other
+    assert mrml.outside_change(volume) == mrml.CHANGE_OTHER_NODE
+    assert mrml.update_design(volume, phantom_design, slicer_app.volume_rendering_logic) is ours
+    assert display.GetVolumePropertyNode() is ours and other in property_nodes(slicer_app.scene)
+
+
+def test_no_design_and_nothing_shown_mean_nothing_modified(slicer_app, phantom, phantom_design):
+    volume = add_phantom(slicer_app, phantom)
+    assert mrml.design_of_volume(volume) is None and not mrml.modified_outside(volume)
+    apply_design(volume, phantom_design, slicer_app.volume_rendering_logic)
+    slicer_app.volume_rendering_logic.GetFirstVolumeRenderingDisplayNode(volume).SetAndObserveVolumePropertyNodeID(None)
+    assert not mrml.modified_outside(volume)
+
+
+def test_edits_keep_the_unit_distance_that_a_legacy_vp_file_loses(slicer_app, phantom, phantom_design):
+    volume = add_phantom(slicer_app, phantom)
+    node = apply_design(volume, phantom_design, slicer_app.volume_rendering_logic)
+    # A unit distance other than the design's, as Slicer 5.8 reads back from a .vp scene file (1.0, its default) when
+    # the design's is not 1 mm.
+    node.GetVolumeProperty().SetScalarOpacityUnitDistance(2.5 * phantom_design.unit_distance)
+    mrml.update_design(volume, phantom_design, slicer_app.volume_rendering_logic)
+    assert node.GetVolumeProperty().GetScalarOpacityUnitDistance() == pytest.approx(phantom_design.unit_distance)
+
+
+def save_and_reopen(scene, folder, check):
+    from isosimtf.rendering import HeadlessSlicer
+
+    folder.mkdir()
+    assert scene.SaveSceneToSlicerDataBundleDirectory(str(folder))
+    with HeadlessSlicer(size=(64, 64)) as reopened:
+        reopened.scene.SetURL(str(folder / f"{folder.name}.mrml"))
+        assert reopened.scene.Connect() == 1
+        check(reopened)
+
+
+def test_scene_saved_with_a_legacy_vp_file_and_reopened(tmp_path, slicer_app, phantom, phantom_design):
+    """Slicer 5.8 saves the property node as .vp, which has no unit distance: the design puts it back."""
+    volume = add_phantom(slicer_app, phantom)
+    node = apply_design(volume, phantom_design, slicer_app.volume_rendering_logic)
+    storage = slicer_app.scene.AddNewNodeByClass("vtkMRMLVolumePropertyStorageNode")
+    storage.SetFileName(str(tmp_path / "tf.vp"))
+    node.SetAndObserveStorageNodeID(storage.GetID())
+
+    def check(reopened):
+        volume_back = reopened.scene.GetFirstNodeByName("Head")
+        node_back = design_node_of(volume_back)
+        assert node_back.GetStorageNode().GetFileName().endswith(".vp")
+        design = mrml.design_of_volume(volume_back)
+        assert design.to_dict()["classes"] == phantom_design.to_dict()["classes"]
+        assert not mrml.modified_outside(volume_back)
+        assert node_back.GetVolumeProperty().GetScalarOpacityUnitDistance() == 1.0  # lost by the .vp file
+        mrml.update_design(volume_back, design, reopened.volume_rendering_logic)
+        assert node_back.GetVolumeProperty().GetScalarOpacityUnitDistance() == pytest.approx(design.unit_distance)
+
+    save_and_reopen(slicer_app.scene, tmp_path / "bundle", check)
+
+
+def test_older_scenes_with_the_design_as_an_attribute_still_load(tmp_path, slicer_app, phantom, phantom_design):
+    volume = add_phantom(slicer_app, phantom)
+    # The layout of earlier versions: the design as an attribute of the property node, which references the volume.
+    legacy = slicer_app.scene.AddNewNodeByClass("vtkMRMLVolumePropertyNode", "Head IsoSimilarityTF")
+    legacy.SetNodeReferenceID(mrml.LEGACY_VOLUME_ROLE, volume.GetID())
+    legacy.SetAttribute(mrml.LEGACY_DESIGN_ATTRIBUTE, phantom_design.to_json())
+    phantom_design.update_volume_property(legacy.GetVolumeProperty())
+    display = slicer_app.show_volume(volume)
+    display.SetAndObserveVolumePropertyNodeID(legacy.GetID())
+
+    def check(reopened):
+        volume_back = reopened.scene.GetFirstNodeByName("Head")
+        design = mrml.design_of_volume(volume_back)
+        assert design is not None and design.to_dict()["classes"] == phantom_design.to_dict()["classes"]
+        node_back = design_node_of(volume_back)
+        assert design_of(node_back).to_dict() == design.to_dict()
+        assert not mrml.modified_outside(volume_back)
+        # The next write moves the design into its own node and reuses the property node.
+        assert apply_design(volume_back, design, reopened.volume_rendering_logic) is node_back
+        assert mrml.design_text_node(volume_back) is not None
+        assert not node_back.GetAttribute(mrml.LEGACY_DESIGN_ATTRIBUTE)
+        assert mrml.design_of_volume(volume_back).to_dict() == design.to_dict()
+
+    save_and_reopen(slicer_app.scene, tmp_path / "legacy", check)
+
+
+# Classes as segments -----------------------------------------------------------------------------------------------
+@pytest.fixture()
+def segmentations(slicer_app):
+    """Slicer's Segmentations module logic on the scene (registers the converter rules, as the application does)."""
+    import slicer
+
+    logic = slicer.vtkSlicerSegmentationsModuleLogic()
+    logic.SetMRMLApplicationLogic(slicer_app.app_logic)
+    logic.SetMRMLScene(slicer_app.scene)
+    yield logic
+    logic.SetMRMLScene(None)
+
+
+def segment_labels(scene, segmentation_node, reference_volume):
+    """Label value 1..N (segment order) per voxel of the reference volume, from Slicer's own export."""
+    import slicer
+    from vtkmodules.util import numpy_support
+    from vtkmodules.vtkCommonCore import vtkStringArray
+
+    segmentation = segmentation_node.GetSegmentation()
+    ids = vtkStringArray()
+    for index in range(segmentation.GetNumberOfSegments()):
+        ids.InsertNextValue(segmentation.GetNthSegmentID(index))
+    labelmap = scene.AddNewNodeByClass("vtkMRMLLabelMapVolumeNode")
+    assert slicer.vtkSlicerSegmentationsModuleLogic.ExportSegmentsToLabelmapNode(
+        segmentation_node, ids, labelmap, reference_volume
+    )
+    image = labelmap.GetImageData()
+    columns, rows, slices = image.GetDimensions()
+    return numpy_support.vtk_to_numpy(image.GetPointData().GetScalars()).reshape(slices, rows, columns)
+
+
+def expected_labels(design, volume, classes):
+    from IsoSimilarityTFLib.quantize import quantize
+
+    values = phantom_values(volume)
+    class_ids = design.labels[quantize(values, design.n_bins, design.value_range).bins]
+    lookup = np.zeros(len(design.classes), dtype=int)
+    lookup[[c.id for c in classes]] = np.arange(1, len(classes) + 1)
+    return lookup[class_ids]
+
+
+def phantom_values(volume):
+    from vtkmodules.util import numpy_support
+
+    image = volume.GetImageData()
+    columns, rows, slices = image.GetDimensions()
+    return numpy_support.vtk_to_numpy(image.GetPointData().GetScalars()).reshape(slices, rows, columns)
+
+
+def test_export_segmentation_gives_one_segment_per_shown_class_with_exact_voxels(
+    tmp_path, slicer_app, segmentations, phantom, phantom_design
+):
+    volume = add_phantom(slicer_app, phantom)
+    apply_design(volume, phantom_design, slicer_app.volume_rendering_logic)
+    segmentation_node = mrml.export_segmentation(volume, phantom_design)
+    shown = [c for c in phantom_design.classes if phantom_design.is_shown(c.id)]
+    segmentation = segmentation_node.GetSegmentation()
+    assert segmentation.GetNumberOfSegments() == len(shown) > 2
+    for index, isovalue_class in enumerate(shown):
+        segment = segmentation.GetNthSegment(index)
+        assert segment.GetName() == mrml.segment_name(isovalue_class)
+        assert segment.GetName().startswith(f"Class {isovalue_class.id + 1} (")
+        assert segment.GetColor() == pytest.approx(isovalue_class.color, abs=1e-6)
+    expected = expected_labels(phantom_design, volume, shown)
+    np.testing.assert_array_equal(segment_labels(slicer_app.scene, segmentation_node, volume), expected)
+    for index, isovalue_class in enumerate(shown):  # voxel counts as in the classes table
+        assert np.count_nonzero(expected == index + 1) == isovalue_class.voxels
+    assert segmentation_node.GetDisplayNode() is not None
+
+    # Saved as Slicer's segmentation file and read back with Slicer's storage node: the same segments and voxels.
+    path = str(tmp_path / "classes.seg.nrrd")
+    writer = slicer_app.scene.AddNewNodeByClass("vtkMRMLSegmentationStorageNode")
+    writer.SetFileName(path)
+    assert writer.WriteData(segmentation_node)
+    back = slicer_app.scene.AddNewNodeByClass("vtkMRMLSegmentationNode")
+    reader = slicer_app.scene.AddNewNodeByClass("vtkMRMLSegmentationStorageNode")
+    reader.SetFileName(path)
+    assert reader.ReadData(back)
+    names = [back.GetSegmentation().GetNthSegment(i).GetName() for i in range(len(shown))]
+    assert names == [mrml.segment_name(c) for c in shown]
+    np.testing.assert_array_equal(segment_labels(slicer_app.scene, back, volume), expected)
+
+
+def test_export_segmentation_of_all_classes_and_solo(slicer_app, segmentations, phantom, phantom_design):
+    volume = add_phantom(slicer_app, phantom)
+    design = fresh(phantom_design)
+    every = mrml.export_segmentation(volume, design, which="all")
+    assert every.GetSegmentation().GetNumberOfSegments() == len(design.classes)
+    assert (segment_labels(slicer_app.scene, every, volume) > 0).all()  # every voxel is in one class
+    design.solo(design.classes[-1].id)
+    alone = mrml.export_segmentation(volume, design)
+    assert alone.GetSegmentation().GetNumberOfSegments() == 1
+    with pytest.raises(ValueError, match="which"):
+        mrml.export_segmentation(volume, design, which="some")
+
+
+# The design as a preset --------------------------------------------------------------------------------------------
+def test_add_preset_puts_the_design_in_the_preset_menu_with_an_icon(slicer_app, phantom_design):
+    from IsoSimilarityTFLib.pictures import ICON_SIZE, transfer_function_icon
+
+    logic = slicer_app.volume_rendering_logic
+    preset = mrml.add_preset(phantom_design, logic, "Head classes")
+    assert logic.GetPresetByName("Head classes") is preset
+    assert preset.GetScene() is logic.GetPresetsScene()
+    assert mrml.shows_design(preset, phantom_design)
+    assert preset.GetEffectiveRange() == pytest.approx(phantom_design.value_range)
+    assert preset.GetVolumeProperty().GetScalarOpacityUnitDistance() == pytest.approx(phantom_design.unit_distance)
+    icon = preset.GetNodeReference(logic.GetIconVolumeReferenceRole()).GetImageData()
+    assert icon.GetDimensions() == (ICON_SIZE, ICON_SIZE, 1) and icon.GetNumberOfScalarComponents() == 3
+    picture = transfer_function_icon(phantom_design)
+    assert picture.shape == (ICON_SIZE, ICON_SIZE, 3) and len(np.unique(picture.reshape(-1, 3), axis=0)) > 2
+    with pytest.raises(ValueError):
+        mrml.add_preset(phantom_design, logic, "  ")
+
+
+def test_a_preset_applies_to_another_volume(slicer_app, phantom, phantom_design):
+    """What the preset menu does with it: CopyContent into another volume's property node shows the design."""
+    mrml.add_preset(phantom_design, slicer_app.volume_rendering_logic, "Head classes")
+    volume = add_phantom(slicer_app, phantom, name="Other")
+    display = slicer_app.show_volume(volume)
+    display.GetVolumePropertyNode().CopyContent(slicer_app.volume_rendering_logic.GetPresetByName("Head classes"))
+    assert mrml.shows_design(display.GetVolumePropertyNode(), phantom_design)

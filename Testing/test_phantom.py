@@ -1,11 +1,11 @@
-"""Tests of the built-in CT-like head phantom (IsoSimilarityTFLib.phantom)."""
+"""Tests of the built-in CT-like head phantom (isosimtf.phantom)."""
 
 import hashlib
 
 import numpy as np
 import pytest
 
-from IsoSimilarityTFLib.phantom import FIELD_OF_VIEW_MM, TISSUE_HU, TISSUES, Phantom, head_phantom
+from isosimtf.phantom import FIELD_OF_VIEW_MM, TISSUE_HU, TISSUES, Phantom, head_phantom
 
 N_TISSUES = len(TISSUES)
 AIR, SOFT, SKULL, GREY, WHITE, CSF, SINUS = (

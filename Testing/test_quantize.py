@@ -85,3 +85,28 @@ def test_bad_bin_counts_are_rejected(n_bins):
 def test_bad_ranges_are_rejected(value_range):
     with pytest.raises(ValueError, match="value_range"):
         quantize(np.arange(8).reshape(2, 2, 2), 4, value_range=value_range)
+
+
+def test_value_range_is_checked_against_the_table_and_the_data():
+    values = np.arange(512, dtype=np.int16).reshape(8, 8, 8)
+    with pytest.raises(ValueError, match=r"value_range must be two numbers"):  # before: "not enough values to unpack"
+        quantize(values, value_range=(1,))
+    with pytest.raises(ValueError, match=r"lies outside the volume's values \[0, 511\]"):  # before: one bin, exit 0
+        quantize(values, value_range=(5000, 6000))
+    assert quantize(values, value_range=(500, 6000)).value_range == (500.0, 6000.0)  # overlapping: fine
+
+
+def test_huge_integers_are_quantized_exactly_or_refused():
+    """int64 near 2^62: float64 steps by 1024 there, so 1000 distinct values would all fall in one bin."""
+    base = np.int64(2**62)
+    with pytest.raises(ValueError, match="subtract an offset"):
+        quantize(base + np.arange(1000, dtype=np.int64).reshape(10, 10, 10))
+    wide = base + np.arange(1000, dtype=np.int64).reshape(10, 10, 10) * 10**6  # bins far wider than the float step
+    assert np.unique(quantize(wide).bins).size > 200
+
+
+def test_masked_arrays_are_refused():
+    """Before: the mask was silently ignored."""
+    values = np.ma.masked_less(np.arange(512, dtype=np.int16).reshape(8, 8, 8), 100)
+    with pytest.raises(ValueError, match="masked arrays are not supported"):
+        quantize(values)

@@ -1,4 +1,4 @@
-"""Tests of IsoSimilarityTFLib.rendering: Slicer's own volume rendering in a headless, off-screen 3D view."""
+"""Tests of isosimtf.rendering: Slicer's own volume rendering in a headless, off-screen 3D view."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import pytest
 
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 
-from IsoSimilarityTFLib import rendering
+from isosimtf import rendering
 
 LIB_DIR = Path(rendering.__file__).resolve().parents[1]
 
@@ -66,7 +66,7 @@ def test_module_imports_without_slicer_core():
     """Importing the module never imports slicer-core; using it without slicer-core raises a clear RuntimeError."""
     code = (
         "import sys\n"
-        "import IsoSimilarityTFLib.rendering as r\n"
+        "import isosimtf.rendering as r\n"
         "assert 'slicer' not in sys.modules and 'slicer_core' not in sys.modules\n"
         "sys.modules['slicer'] = None\n"  # makes `import slicer` fail as if slicer-core were not installed
         "try:\n"

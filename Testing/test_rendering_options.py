@@ -10,7 +10,7 @@ import pytest
 
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 
-from IsoSimilarityTFLib import rendering
+from isosimtf import rendering
 
 pytestmark = pytest.mark.skipif(
     not rendering.slicer_core_available(), reason="slicer-core (Slicer's Qt-free MRML libraries) is not installed"
@@ -125,7 +125,7 @@ def test_gpu_ray_casting_logs_the_lookup_table_fallback_only_for_near_vertical_s
 def test_cli_render_png_is_framed_and_takes_the_slicer_backdrop(tmp_path):
     from test_cli import read_png
 
-    from IsoSimilarityTFLib import cli
+    from isosimtf import cli
 
     status = cli.main(
         ["phantom", "-o", str(tmp_path), "--phantom-size", "32", "--size", "96", "-q", "--backdrop", "slicer"]
@@ -141,7 +141,7 @@ def test_cli_render_png_is_framed_and_takes_the_slicer_backdrop(tmp_path):
 
 
 def test_cli_rejects_an_unknown_backdrop(capsys):
-    from IsoSimilarityTFLib import cli
+    from isosimtf import cli
 
     assert cli.main(["phantom", "-o", "unused", "--backdrop", "white"]) == cli.EXIT_USAGE
     assert "--backdrop" in capsys.readouterr().err

@@ -4,10 +4,10 @@ import itertools
 
 import numpy as np
 import pytest
+from reference import reference_level_sizes, reference_similarity_matrix
 
-from IsoSimilarityTFLib import isovalue_similarity, octree_levels, similarity_matrix, unit_cell_intervals
-from IsoSimilarityTFLib.cells import hyper_cell_intervals
-from IsoSimilarityTFLib.reference import reference_level_sizes, reference_similarity_matrix
+from IsoSimilarityTFLib import isovalue_similarity, octree_levels, similarity, similarity_matrix, unit_cell_intervals
+from IsoSimilarityTFLib.cells import OctreeBuilder, unit_cell_slabs
 from IsoSimilarityTFLib.similarity import joint_interval_histogram, overlap_counts
 
 RULES = list(itertools.product(("inclusive", "strict"), ("thesis", "ma-entezari")))
@@ -82,15 +82,50 @@ def test_octree_levels_follow_the_definition():
         assert octree_levels(shape) == reference_level_sizes(shape)
 
 
-def test_hyper_cell_intervals_match_direct_blocks():
-    rng = np.random.default_rng(3)
-    bins = rng.integers(0, 200, (14, 9, 23)).astype(np.uint8)
+def direct_block_intervals(bins, size, index):
+    """Interval of one hyper-cell read straight from its voxels."""
+    block = bins[tuple(slice(i * s, min((i + 1) * s, n - 1) + 1) for i, s, n in zip(index, size, bins.shape))]
+    return block.min(), block.max()
+
+
+@pytest.mark.parametrize("planes", [1, 2, 3, 5, 7, 32])
+@pytest.mark.parametrize("shape", [(14, 9, 23), (17, 6, 5), (31, 4, 3), (2, 12, 9)])
+def test_hyper_cell_intervals_match_direct_blocks_for_any_slab_thickness(planes, shape):
+    """Slabs of any thickness, fed in any order, give every level exactly, including levels nested in no finer one."""
+    rng = np.random.default_rng(sum(shape) * 10 + planes)
+    bins = rng.integers(0, 200, shape).astype(np.uint8)
     mins, maxs = unit_cell_intervals(bins)
-    assert mins.shape == (13, 8, 22)
-    for level, size, level_mins, level_maxs in hyper_cell_intervals(mins, maxs):
+    assert mins.shape == tuple(n - 1 for n in shape)
+    for index in itertools.product(*(range(n) for n in mins.shape)):
+        assert (mins[index], maxs[index]) == direct_block_intervals(bins, (1, 1, 1), index)
+    builder = OctreeBuilder(mins.shape, bins.dtype)
+    slabs = [(first, m.copy(), x.copy()) for first, m, x in unit_cell_slabs(bins, planes)]
+    for first, slab_mins, slab_maxs in slabs[::-1]:
+        builder.add_slab(first, slab_mins, slab_maxs)
+    seen = []
+    for level, size, level_mins, level_maxs in builder.levels():
+        seen.append(level)
+        assert size == octree_levels(mins.shape)[level - 1]
         for index in itertools.product(*(range(n) for n in level_mins.shape)):
-            block = bins[tuple(slice(i * s, min((i + 1) * s, n - 1) + 1) for i, s, n in zip(index, size, bins.shape))]
-            assert level_mins[index] == block.min() and level_maxs[index] == block.max(), (level, index)
+            expected = direct_block_intervals(bins, size, index)
+            assert (level_mins[index], level_maxs[index]) == expected, (level, index)
+    assert seen == list(range(len(octree_levels(mins.shape)) - 1, 0, -1))
+
+
+@pytest.mark.parametrize("crossing,normalization", RULES)
+def test_fast_path_equals_reference_across_slab_boundaries(crossing, normalization, monkeypatch):
+    """Slabs of one, two or three planes (odd steps against the octree's even ones) change nothing."""
+    rng = np.random.default_rng(17)
+    shapes = [(13, 6, 7), (16, 5, 4), (9, 17, 3), (30, 3, 3)]
+    volumes = [(random_volume(rng, shape, 19, "sorted"), shape) for shape in shapes]
+    for cells_per_slab in (1, 20, 50):
+        monkeypatch.setattr(similarity, "_SLAB_CELLS", cells_per_slab)
+        for bins, shape in volumes:
+            n_levels = len(octree_levels(tuple(s - 1 for s in shape)))
+            for levels in (1, n_levels // 2 + 1, n_levels):
+                fast = similarity_matrix(bins, 19, crossing=crossing, normalization=normalization, levels=levels)
+                slow = reference_similarity_matrix(bins, 19, crossing, normalization, levels)
+                np.testing.assert_allclose(fast, slow, rtol=0, atol=1e-12, err_msg=f"{shape} {cells_per_slab}")
 
 
 def test_overlap_counts_from_histogram_match_brute_force():
@@ -172,20 +207,42 @@ def test_strict_crossing_leaves_the_extremes_empty():
     assert list(result.empty_isovalues) == [0, 5, 6, 7]
 
 
+class Stop(Exception):
+    pass
+
+
 def test_progress_is_reported_per_level_and_can_abort():
     bins = np.random.default_rng(0).integers(0, 16, (9, 9, 9))
     seen = []
-    similarity_matrix(bins, 16, progress=lambda fraction, message: seen.append(fraction))
-    assert seen == pytest.approx([(i + 1) / len(seen) for i in range(len(seen))]) and len(seen) == 4
-
-    class Stop(Exception):
-        pass
+    similarity_matrix(bins, 16, progress=lambda fraction, message: seen.append((fraction, message)))
+    fractions = [fraction for fraction, _ in seen]
+    assert fractions == sorted(fractions) and fractions[-1] == pytest.approx(1.0)
+    # One report per level after the unit cells (9^3 voxels: 4 levels).
+    assert [message for _, message in seen] == [f"similarity: level {level} of 4" for level in (3, 2, 1)]
 
     def stop(fraction, message):
         raise Stop
 
     with pytest.raises(Stop):
         similarity_matrix(bins, 16, progress=stop)
+
+
+def test_progress_during_the_unit_cell_pass_can_cancel_it(monkeypatch):
+    """A long pass over the unit cells reports as it goes, so cancelling does not wait for its end."""
+    monkeypatch.setattr(similarity, "_PROGRESS_CELLS", 100)
+    monkeypatch.setattr(similarity, "_SLAB_CELLS", 100)
+    bins = np.random.default_rng(0).integers(0, 16, (30, 11, 11))
+    seen = []
+
+    def stop_early(fraction, message):
+        seen.append((fraction, message))
+        raise Stop
+
+    with pytest.raises(Stop):
+        similarity_matrix(bins, 16, progress=stop_early)
+    # Stopped after the first plane of 10 x 10 unit cells, of 29 planes.
+    [(fraction, message)] = seen
+    assert message == "similarity: unit cells" and 0 < fraction < 1 / 29
 
 
 @pytest.mark.parametrize(
@@ -220,3 +277,15 @@ def test_uint16_bins_for_many_isovalues():
     slow = reference_similarity_matrix(bins, 1000)
     np.testing.assert_allclose(fast[np.ix_(bins_used, bins_used)], slow[np.ix_(bins_used, bins_used)], atol=1e-12)
     np.testing.assert_allclose(fast, slow, atol=1e-12)
+
+
+def test_memory_is_checked_before_any_work(monkeypatch):
+    """Before: numpy's MemoryError asking for 74.5 GiB, or the OOM killer."""
+    from IsoSimilarityTFLib import memory
+    from IsoSimilarityTFLib.errors import InsufficientMemoryError
+
+    with pytest.raises(ValueError, match="n_bins must be an integer from 2 to 4096"):
+        similarity_matrix(np.zeros((2, 2, 2), np.uint16), n_bins=100_000)
+    monkeypatch.setattr(memory, "available_memory_bytes", lambda: 1 << 20)
+    with pytest.raises(InsufficientMemoryError, match="4096 bins"):
+        similarity_matrix(np.zeros((4, 4, 4), np.uint16), n_bins=4096)

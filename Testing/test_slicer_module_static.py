@@ -2,20 +2,19 @@
 catalog entry, icons and Python 3.9 grammar."""
 
 import ast
+import importlib.util
 import json
+import os
 import re
 import struct
 import sys
+import sysconfig
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
 
-from IsoSimilarityTFLib.classes import BACKGROUND_RULES
-from IsoSimilarityTFLib.clustering import PREFERENCES
-from IsoSimilarityTFLib.design import DEFAULT_OPTIONS, UNCONVERGED_RULES
-from IsoSimilarityTFLib.quantize import MAX_BINS
-from IsoSimilarityTFLib.similarity import CROSSINGS, NORMALIZATIONS
+from IsoSimilarityTFLib.options import OPTIONS
 
 ROOT = Path(__file__).resolve().parents[1]
 MODULE_DIR = ROOT / "IsoSimilarityTF"
@@ -34,17 +33,12 @@ BINDABLE_WIDGETS = {
     "choice": {"QComboBox", "ctkComboBox"},
     "node": {"qMRMLNodeComboBox"},
 }
-# Values each Choice-annotated parameter must offer: what the engine accepts.
-ENGINE_CHOICES = {
-    "crossing": set(CROSSINGS),
-    "normalization": set(NORMALIZATIONS),
-    "preference": set(PREFERENCES) | {"number"},
-    "background": set(BACKGROUND_RULES),
-    "unconverged": set(UNCONVERGED_RULES),
-}
-# Parameter node field -> engine option, for the defaults that must agree.
-ENGINE_DEFAULTS = {
+# Choice parameters that offer more than the engine option's words ("number": the preference is preferenceValue).
+EXTRA_CHOICES = {"preference": {"number"}}
+# Parameter node field -> engine option whose table entry gives its range or choices and its default.
+ENGINE_OPTIONS = {
     "bins": "n_bins",
+    "levels": "levels",
     "crossing": "crossing",
     "normalization": "normalization",
     "preference": "preference",
@@ -99,8 +93,9 @@ def _annotation_kind(annotation: ast.expr) -> tuple:
         elements = annotation.slice.elts
         base = elements[0]
         for extra in elements[1:]:
-            if isinstance(extra, ast.Call) and getattr(extra.func, "id", None) == "Choice":
-                choices = ast.literal_eval(extra.args[0])
+            if isinstance(extra, ast.Call) and getattr(extra.func, "id", None) == "_choice":
+                option, *more = (ast.literal_eval(a) for a in extra.args)
+                choices = [*OPTIONS[option].choices, *more]
     name = getattr(base, "id", None)
     if choices is not None:
         return "choice", choices
@@ -218,24 +213,31 @@ def test_each_bound_widget_can_represent_its_parameter_type():
         assert widget.get("class") in BINDABLE_WIDGETS[kind], f"{name}: {widget.get('class')} cannot show a {kind}"
 
 
-def test_parameter_choices_are_what_the_engine_accepts():
+def _table_option(check: ast.expr) -> str:
+    """The options-table entry a field's check is made from: ``_withinRange("n_bins")`` -> ``"n_bins"``."""
+    assert isinstance(check, ast.Call) and getattr(check.func, "id", None) in ("_withinRange", "_choice"), (
+        f"{ast.unparse(check)} is not made from the options table"
+    )
+    return ast.literal_eval(check.args[0])
+
+
+def test_engine_parameters_take_their_checks_and_defaults_from_the_options_table():
     fields = _parameter_fields()
-    for name, expected in ENGINE_CHOICES.items():
+    for name, option in ENGINE_OPTIONS.items():
+        annotation, default = fields[name]
+        assert _table_option(annotation.slice.elts[1]) == option, name
+        if name == "levels":  # 0 stands for the engine's None (all levels)
+            assert ast.literal_eval(default) == 0 and OPTIONS[option].none_means
+        else:
+            assert ast.unparse(default) == f"_default({option!r})", name
+
+
+def test_choice_parameters_offer_the_engine_words():
+    fields = _parameter_fields()
+    for name, option in ENGINE_OPTIONS.items():
         kind, choices = _annotation_kind(fields[name][0])
-        assert kind == "choice"
-        assert set(choices) == expected, name
-
-
-def test_parameter_defaults_agree_with_the_engine():
-    fields = _parameter_fields()
-    for name, option in ENGINE_DEFAULTS.items():
-        default = fields[name][1]
-        assert default is not None, f"{name} has no default"
-        assert ast.literal_eval(default) == DEFAULT_OPTIONS[option], name
-    assert ast.literal_eval(fields["levels"][1]) == 0  # 0 = all levels = DEFAULT_OPTIONS["levels"] None
-    assert DEFAULT_OPTIONS["levels"] is None
-    bins_range = fields["bins"][0].slice.elts[1]
-    assert [ast.literal_eval(a) for a in bins_range.args] == [2, MAX_BINS]
+        if OPTIONS[option].choices:
+            assert kind == "choice" and set(choices) == set(OPTIONS[option].choices) | EXTRA_CHOICES.get(name, set())
 
 
 def test_every_ui_widget_the_module_uses_exists():
@@ -276,8 +278,26 @@ def test_module_has_the_four_scripted_module_classes():
     assert "VTKObservationMixin" in {getattr(b, "id", None) for b in _class(tree, "IsoSimilarityTFWidget").bases}
 
 
+def _is_standard_library(name: str) -> bool:
+    """Whether a top-level module comes with Python (works on 3.9, which has no ``sys.stdlib_module_names``)."""
+    if name in sys.builtin_module_names:
+        return True
+    spec = importlib.util.find_spec(name)
+    if spec is None or spec.origin is None:
+        return False
+    if spec.origin in ("built-in", "frozen"):
+        return True
+    origin = os.path.realpath(spec.origin)
+    folders = {os.path.realpath(sysconfig.get_paths()[key]) for key in ("stdlib", "platstdlib")}
+    return "site-packages" not in origin and any(origin.startswith(folder + os.sep) for folder in folders)
+
+
+def test_standard_library_check_knows_its_modules():
+    assert all(_is_standard_library(name) for name in ("os", "sys", "functools", "json", "logging", "typing"))
+    assert not any(_is_standard_library(name) for name in ("numpy", "pytest", "IsoSimilarityTFLib", "no_such_module"))
+
+
 def test_module_imports_only_what_slicer_has_at_top_level():
-    stdlib = set(sys.stdlib_module_names)
     for node in _module_tree().body:
         if isinstance(node, ast.Import):
             names = [alias.name for alias in node.names]
@@ -288,7 +308,7 @@ def test_module_imports_only_what_slicer_has_at_top_level():
             continue
         for name in names:
             top = name.split(".")[0]
-            assert top in stdlib or top in SLICER_TOP_LEVEL_MODULES, f"top-level import of {name}"
+            assert top in SLICER_TOP_LEVEL_MODULES or _is_standard_library(top), f"top-level import of {name}"
 
 
 def test_scikit_learn_is_never_imported_at_module_level():
@@ -321,7 +341,7 @@ def test_module_tests_download_nothing():
         assert word not in source
 
 
-@pytest.mark.parametrize("path", [MODULE_FILE, LIB_DIR / "pictures.py"], ids=lambda p: p.name)
+@pytest.mark.parametrize("path", [MODULE_FILE, *sorted(LIB_DIR.glob("*.py"))], ids=lambda p: p.name)
 def test_python_3_9_grammar(path):
     ast.parse(path.read_text(encoding="utf-8"), filename=str(path), feature_version=(3, 9))
 
@@ -393,3 +413,64 @@ def test_classes_table_columns_match_the_module():
     )
     assert len(columns) == len(assignment.targets[0].elts) == ast.literal_eval(assignment.value.args[0])
     assert all(columns)
+
+
+# Values the module's own tests write into the parameter node ----------------------------------------------------------
+def _field_check(annotation: ast.expr):
+    """(minimum, maximum, choices) the parameter node wrapper validates a field with."""
+    choices = _annotation_kind(annotation)[1]
+    if choices is not None:
+        return None, None, set(choices)
+    for extra in annotation.slice.elts[1:] if isinstance(annotation, ast.Subscript) else []:
+        if isinstance(extra, ast.Call) and getattr(extra.func, "id", None) == "_withinRange":
+            entry = OPTIONS[ast.literal_eval(extra.args[0])]
+            keywords = {k.arg: ast.literal_eval(k.value) for k in extra.keywords}
+            return keywords.get("minimum", entry.minimum), entry.maximum, None
+        if isinstance(extra, ast.Call) and getattr(extra.func, "id", None) == "WithinRange":
+            low, high = (ast.literal_eval(a) for a in extra.args)
+            return low, high, None
+    return None, None, None
+
+
+def test_module_tests_write_only_valid_values_into_the_parameter_node():
+    """The wrapper validates every write (a ValueError in Slicer): ``levels = 99`` once broke the self-test."""
+    fields = _parameter_fields()
+    test_class = _class(_module_tree(), "IsoSimilarityTFTest")
+    writes = 0
+    for node in ast.walk(test_class):
+        if not isinstance(node, ast.Assign):
+            continue
+        for target in node.targets:
+            if not (isinstance(target, ast.Attribute) and target.attr in fields):
+                continue
+            owner = target.value
+            owner_name = owner.attr if isinstance(owner, ast.Attribute) else getattr(owner, "id", "")
+            if "parameterNode" not in owner_name and "ParameterNode" not in owner_name:
+                continue
+            try:
+                value = ast.literal_eval(node.value)
+            except ValueError:
+                continue  # a node or a computed value
+            writes += 1
+            low, high, choices = _field_check(fields[target.attr][0])
+            if choices is not None:
+                assert value in choices, f"{target.attr} = {value!r} is not one of {sorted(choices)}"
+            if low is not None:
+                assert low <= value <= high, f"{target.attr} = {value!r} is outside [{low}, {high}]"
+    assert writes >= 5
+
+
+def test_every_choice_has_a_readable_label():
+    function = next(n for n in _module_tree().body if isinstance(n, ast.FunctionDef) and n.name == "choiceLabels")
+    returned = next(n for n in ast.walk(function) if isinstance(n, ast.Return)).value
+    labels = {
+        ast.literal_eval(key): {ast.literal_eval(k): v for k, v in zip(value.keys, value.values)}
+        for key, value in zip(returned.keys, returned.values)
+    }
+    fields = _parameter_fields()
+    choice_fields = {name for name, (annotation, _) in fields.items() if _annotation_kind(annotation)[0] == "choice"}
+    assert set(labels) == choice_fields
+    for name in choice_fields:
+        assert set(labels[name]) == set(_annotation_kind(fields[name][0])[1]), name
+        for label in labels[name].values():  # translatable: _("...")
+            assert isinstance(label, ast.Call) and getattr(label.func, "id", None) == "_", name

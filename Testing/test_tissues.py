@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 
 from IsoSimilarityTFLib import TransferFunctionDesign, design_transfer_function
-from IsoSimilarityTFLib.phantom import head_phantom
 from IsoSimilarityTFLib.tissues import (
     TissueHierarchy,
     choose_intensity_model,
@@ -15,6 +14,7 @@ from IsoSimilarityTFLib.tissues import (
     fit_intensity_model,
     kmeans_1d,
 )
+from isosimtf.phantom import head_phantom
 
 
 def histogram(means, sd, counts, n_bins=256, seed=0):

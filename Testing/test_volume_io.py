@@ -1,15 +1,19 @@
-"""Tests for IsoSimilarityTFLib.volume_io: format round trips, geometry, DICOM series, clear errors, real data."""
+"""Tests for isosimtf.volume_io: format round trips, geometry, DICOM series, clear errors, real data."""
 
 from __future__ import annotations
 
 import gzip
 import struct
+import zlib
 from pathlib import Path
 
 import numpy as np
 import pytest
+from volume_writers import write_volume
 
-from IsoSimilarityTFLib.volume_io import Volume, VolumeReadError, read_volume, real_dataset_path, write_volume
+from IsoSimilarityTFLib import memory
+from IsoSimilarityTFLib.errors import InsufficientMemoryError
+from isosimtf.volume_io import Volume, VolumeReadError, read_volume, real_dataset_path
 
 SHAPE = (5, 7, 9)  # (k, j, i): odd and different along every axis
 SPACING = (0.7, 1.3, 2.1)  # anisotropic, mm along i, j, k
@@ -34,15 +38,28 @@ def _volume(left_handed: bool) -> Volume:
     return Volume(values, SPACING, ORIGIN, directions, "phantom")
 
 
-def _assert_same(read: Volume, expected: Volume, geometry: bool = True) -> None:
+def _right_handed(volume: Volume) -> Volume:
+    """The same voxels at the same RAS positions with a right-handed index frame, as Slicer's readers give them.
+
+    Slicer's ITK-based reader reverses the slice order of a left-handed volume (and negates the k direction).
+    """
+    if np.linalg.det(volume.directions) > 0:
+        return volume
+    flip = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, -1, volume.shape[0] - 1], [0, 0, 0, 1]], dtype=float)
+    return Volume.from_ijk_to_ras(volume.values[::-1], volume.ijk_to_ras() @ flip, volume.name)
+
+
+def _assert_same(read: Volume, expected: Volume, geometry: bool = True, slicer: bool = True) -> None:
+    if geometry and slicer:
+        expected = _right_handed(expected)
     assert read.values.dtype == expected.values.dtype
     assert read.values.shape == expected.values.shape
     np.testing.assert_array_equal(read.values, expected.values)
     if geometry:
-        np.testing.assert_allclose(read.spacing, expected.spacing, rtol=0, atol=1e-6)
-        np.testing.assert_allclose(read.origin, expected.origin, rtol=0, atol=1e-6)
-        np.testing.assert_allclose(read.directions, expected.directions, rtol=0, atol=1e-6)
-        np.testing.assert_allclose(read.ijk_to_ras(), expected.ijk_to_ras(), rtol=0, atol=1e-6)
+        np.testing.assert_allclose(read.spacing, expected.spacing, rtol=0, atol=1e-5)
+        np.testing.assert_allclose(read.origin, expected.origin, rtol=0, atol=1e-5)
+        np.testing.assert_allclose(read.directions, expected.directions, rtol=0, atol=1e-5)
+        np.testing.assert_allclose(read.ijk_to_ras(), expected.ijk_to_ras(), rtol=0, atol=1e-5)
 
 
 @pytest.mark.parametrize("left_handed", [False, True], ids=["right-handed", "left-handed"])
@@ -52,7 +69,7 @@ def test_round_trip_keeps_values_and_geometry(tmp_path: Path, suffix: str, left_
     path = tmp_path / f"phantom{suffix}"
     write_volume(volume, path)
     read = read_volume(path)
-    _assert_same(read, volume)
+    _assert_same(read, volume, slicer=suffix != ".vti")
     assert read.name == "phantom"
     assert capfd.readouterr().err == ""  # nothing from VTK on stderr
 
@@ -86,13 +103,20 @@ def test_ijk_to_ras_maps_indices_to_millimetres() -> None:
     np.testing.assert_allclose((matrix @ [2, 3, 4, 1])[:3], expected)
 
 
-def test_nrrd_header_is_lps(tmp_path: Path) -> None:
-    volume = Volume(np.zeros(SHAPE, np.int16), SPACING, ORIGIN, np.eye(3), "v")
-    write_volume(volume, tmp_path / "v.nrrd")
-    header = (tmp_path / "v.nrrd").read_bytes().split(b"\n\n", 1)[0].decode()
-    assert "space: left-posterior-superior" in header
-    assert "space origin: (-10.5,20.25,33.0)" in header
-    assert "sizes: 9 7 5" in header
+def test_nrrd_is_read_as_lps(tmp_path: Path) -> None:
+    """A NRRD written by hand in LPS is read with Slicer's geometry: RAS, the first two axes negated."""
+    values = (np.arange(np.prod(SHAPE)) % 100).reshape(SHAPE).astype(np.int16)
+    header = (
+        "NRRD0004\ntype: short\ndimension: 3\nspace: left-posterior-superior\nsizes: 9 7 5\n"
+        "space directions: (0.7,0,0) (0,1.3,0) (0,0,2.1)\nkinds: domain domain domain\nendian: little\n"
+        "encoding: raw\nspace origin: (-10.5,20.25,33)\n\n"
+    )
+    (tmp_path / "v.nrrd").write_bytes(header.encode() + values.astype("<i2").tobytes())
+    read = read_volume(tmp_path / "v.nrrd")
+    np.testing.assert_array_equal(read.values, values)
+    np.testing.assert_allclose(read.origin, ORIGIN, atol=1e-9)
+    np.testing.assert_allclose(read.spacing, SPACING, atol=1e-9)
+    np.testing.assert_allclose(read.directions, np.diag([-1.0, -1.0, 1.0]), atol=1e-9)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -203,7 +227,7 @@ def _read_error(path: Path, capfd) -> str:
     with pytest.raises(VolumeReadError) as info:
         read_volume(path)
     message = str(info.value)
-    assert "\n" not in message
+    assert "\n" not in message and "PosixPath" not in message
     assert str(path) in message
     assert info.value.__traceback__ is not None
     assert capfd.readouterr().err == "", "VTK printed to stderr"
@@ -243,7 +267,7 @@ def test_truncated_files(tmp_path: Path, suffix: str, capfd) -> None:
     volume = _volume(left_handed=False)
     path = tmp_path / f"cut{suffix}"
     write_volume(volume, path)
-    data_path = path.with_suffix(".raw") if suffix == ".nhdr" else path
+    data_path = path.with_suffix(".raw.gz") if suffix == ".nhdr" else path
     data = data_path.read_bytes()
     data_path.write_bytes(data[: len(data) // 2])
     message = _read_error(path, capfd)
@@ -255,12 +279,12 @@ def test_truncated_nrrd_messages(tmp_path: Path, capfd) -> None:
     gz = tmp_path / "cut.nrrd"
     write_volume(volume, gz)
     gz.write_bytes(gz.read_bytes()[:-200])
-    assert "gzip" in _read_error(gz, capfd).lower()
+    assert "truncated or corrupt (expected 630 bytes but received" in _read_error(gz, capfd)
     raw = tmp_path / "raw.nrrd"
     header = b"NRRD0004\ntype: short\ndimension: 3\nsizes: 9 7 5\nencoding: raw\nendian: little\n\n"
     raw.write_bytes(header + volume.values.tobytes()[:100])
     message = _read_error(raw, capfd)
-    assert "truncated" in message and "630 bytes" in message
+    assert "truncated or corrupt" in message and "315" in message
 
 
 def test_garbage_files(tmp_path: Path, capfd) -> None:
@@ -309,14 +333,14 @@ def test_two_d_images_rejected(tmp_path: Path, capfd) -> None:
     np.save(flat, np.zeros((7, 9), np.int16))
     assert "shape (7, 9)" in _read_error(flat, capfd)
     nrrd = tmp_path / "slice.nrrd"
-    nrrd.write_bytes(b"NRRD0004\ntype: short\ndimension: 2\nsizes: 9 7\nencoding: raw\n\n" + bytes(126))
+    nrrd.write_bytes(b"NRRD0004\ntype: short\ndimension: 2\nsizes: 9 7\nendian: little\nencoding: raw\n\n" + bytes(126))
     assert "2-D image" in _read_error(nrrd, capfd)
 
 
 def test_vector_nrrd_rejected(tmp_path: Path, capfd) -> None:
     path = tmp_path / "vectors.nrrd"
     header = b"NRRD0004\ntype: float\ndimension: 4\nsizes: 3 9 7 5\nkinds: vector domain domain domain\n"
-    path.write_bytes(header + b"encoding: raw\n\n" + bytes(4 * 3 * 9 * 7 * 5))
+    path.write_bytes(header + b"endian: little\nencoding: raw\n\n" + bytes(4 * 3 * 9 * 7 * 5))
     assert "3 components per voxel" in _read_error(path, capfd)
 
 
@@ -326,9 +350,138 @@ def test_pickled_npy_rejected(tmp_path: Path, capfd) -> None:
     assert "Cannot read" in _read_error(path, capfd)
 
 
-def test_write_rejects_unknown_suffix(tmp_path: Path) -> None:
-    with pytest.raises(ValueError, match="unsupported suffix"):
-        write_volume(_volume(left_handed=False), tmp_path / "v.xyz")
+# ---------------------------------------------------------------------------------------------------------------
+# Issue 11: what Slicer's readers would get wrong or crash on is refused from the header, before reading voxels
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def _nrrd(path: Path, sizes: str, encoding: str, data: bytes) -> Path:
+    header = f"NRRD0004\ntype: short\ndimension: 3\nsizes: {sizes}\nendian: little\nencoding: {encoding}\n\n"
+    path.write_bytes(header.encode() + data)
+    return path
+
+
+def _nifti_header(dims: tuple[int, int, int]) -> bytes:
+    header = bytearray(352)
+    struct.pack_into("<i", header, 0, 348)
+    struct.pack_into("<8h", header, 40, 3, *dims, 1, 1, 1, 1)
+    struct.pack_into("<hh", header, 70, 4, 16)  # int16
+    struct.pack_into("<8f", header, 76, 1, 1, 1, 1, 1, 1, 1, 1)
+    struct.pack_into("<ff", header, 108, 352.0, 1.0)  # vox_offset, scl_slope
+    header[344:348] = b"n+1\0"
+    return bytes(header)
+
+
+def test_small_files_claiming_huge_volumes_are_refused_from_the_header(tmp_path: Path, capfd) -> None:
+    """Before: std::bad_alloc (exit 134) or 4.3 GB read, then 'the volume is constant'."""
+    huge = "2048 2048 512"
+    files = [
+        _nrrd(tmp_path / "gzip.nrrd", huge, "gzip", gzip.compress(bytes(64))),
+        _nrrd(tmp_path / "ascii.nrrd", huge, "ascii", b"1 2 3\n"),
+    ]
+    files.append(tmp_path / "raw.nii")
+    files[-1].write_bytes(_nifti_header((2048, 2048, 512)) + bytes(1000))
+    files.append(tmp_path / "gz.nii.gz")
+    files[-1].write_bytes(gzip.compress(_nifti_header((2048, 2048, 512)) + bytes(1000)))
+    files.append(tmp_path / "zlib.mha")
+    files[-1].write_bytes(
+        b"ObjectType = Image\nNDims = 3\nCompressedData = True\nCompressedDataSize = 20\nDimSize = 2048 2048 512\n"
+        b"ElementType = MET_SHORT\nElementDataFile = LOCAL\n" + zlib.compress(bytes(100))
+    )
+    (tmp_path / "data.raw.gz").write_bytes(gzip.compress(bytes(100)))
+    files.append(tmp_path / "detached.nhdr")
+    files[-1].write_text(
+        f"NRRD0004\ntype: short\ndimension: 3\nsizes: {huge}\nendian: little\nencoding: gzip\n"
+        "data file: data.raw.gz\n\n"
+    )
+    files.append(tmp_path / "detached.mhd")
+    files[-1].write_text(
+        "ObjectType = Image\nNDims = 3\nDimSize = 2048 2048 512\nElementType = MET_SHORT\nCompressedData = True\n"
+        "ElementDataFile = data.raw.gz\n"
+    )
+    for path in files:
+        assert "2048 x 2048 x 512 voxels of int16 (4096 MiB), more than its" in _read_error(path, capfd)
+
+
+def test_ascii_nrrd_is_read_correctly(tmp_path: Path) -> None:
+    """Before: uninitialized memory (a different value range on every run)."""
+    values = np.arange(5 * 7 * 9, dtype=np.int16).reshape(SHAPE)
+    path = _nrrd(tmp_path / "text.nrrd", "9 7 5", "ascii", " ".join(map(str, values.ravel())).encode() + b"\n")
+    np.testing.assert_array_equal(read_volume(path).values, values)
+
+
+def test_too_large_for_memory_is_refused_before_reading(tmp_path: Path, monkeypatch) -> None:
+    """The header alone decides: these files hold no valid voxels (truncated gzip, a sparse file), yet the error is
+    about memory, not the data."""
+    monkeypatch.setattr(memory, "available_memory_bytes", lambda: 1 << 20)
+    nrrd = _nrrd(tmp_path / "big.nrrd", "128 128 128", "gzip", gzip.compress(bytes(2 * 128**3))[:-100])
+    npy = tmp_path / "big.npy"
+    with open(npy, "wb") as handle:
+        np.lib.format.write_array_header_1_0(handle, {"descr": "<i2", "fortran_order": False, "shape": (128, 128, 128)})
+        handle.truncate(handle.tell() + 2 * 128**3)  # sparse: nothing on disk
+    for path in (nrrd, npy):
+        with pytest.raises(InsufficientMemoryError, match="128 x 128 x 128 voxels"):
+            read_volume(path, n_bins=256)
+
+
+def test_truncated_nifti_is_refused(tmp_path: Path, capfd) -> None:
+    """Slicer's NIfTI reader fills a truncated file with zeros and says nothing."""
+    for suffix in (".nii", ".nii.gz"):
+        path = tmp_path / f"cut{suffix}"
+        write_volume(_volume(left_handed=False), path)
+        path.write_bytes(path.read_bytes()[:-100])
+        assert "truncated" in _read_error(path, capfd)
+
+
+def test_four_d_and_malformed_nrrd_messages(tmp_path: Path, capfd) -> None:
+    four_d = tmp_path / "4d.nrrd"
+    four_d.write_bytes(
+        b"NRRD0004\ntype: short\ndimension: 4\nsizes: 16 8 8 8\nkinds: domain domain domain domain\n"
+        b"endian: little\nencoding: raw\n\n" + bytes(2 * 16 * 8**3)
+    )
+    assert "it is a 4-D image (16 x 8 x 8 x 8 voxels)" in _read_error(four_d, capfd)
+    malformed = tmp_path / "orientation.nrrd"
+    malformed.write_bytes(
+        b"NRRD0004\ntype: short\ndimension: 3\nsizes: 8 8 8\nspace: left-posterior-superior\n"
+        b"space directions: (1,0,0) (0,1) (0,0,1)\nendian: little\nencoding: raw\n\n" + bytes(2 * 8**3)
+    )
+    assert "do not recognise it as NRRD" in _read_error(malformed, capfd)
+
+
+def _write_series(folder: Path, values: np.ndarray, origin_z: float, spacing_z: float, series: str) -> None:
+    folder.mkdir(exist_ok=True)
+    for k in range(values.shape[0]):
+        path = folder / f"{series}{k}"
+        _write_dicom_slice(path, values[k] + 1024, np.array([0.0, 0.0, origin_z + k * spacing_z]),
+                           np.array([1.0, 0, 0, 0, 1, 0]), (0.8, 0.6), k + 1, -1024.0)  # fmt: skip
+        # A second series: another Series Instance UID (same length, so the element lengths stay right).
+        path.write_bytes(path.read_bytes().replace(b"9.7133.1.2", f"9.7133.1.{series[-1]}".encode()))
+
+
+def test_two_dicom_series_in_one_folder(tmp_path: Path, capfd) -> None:
+    """Before: read with slice positions from both series (spacing 27.5 mm instead of 2.5)."""
+    values = np.random.default_rng(3).integers(-1000, 2000, size=(5, 7, 9)).astype(np.int16)
+    folder = tmp_path / "mixed"
+    _write_series(folder, values, 0.0, 2.5, "A2")
+    _write_series(folder, values[:3], 100.0, 30.0, "B3")
+    message = _read_error(folder, capfd)
+    assert "holds 2 DICOM series (5 file(s) from A20; 3 file(s) from B30)" in message
+    assert "give one file of the series" in message
+    first = read_volume(folder / "A22")  # a file of the series reads the whole series, sorted
+    np.testing.assert_array_equal(first.values, values)
+    np.testing.assert_allclose(first.spacing, (0.6, 0.8, 2.5), atol=1e-6)
+    second = read_volume(folder / "B30")
+    np.testing.assert_array_equal(second.values, values[:3])
+    np.testing.assert_allclose(second.spacing[2], 30.0, atol=1e-6)
+
+
+def test_dicom_series_with_slices_sharing_a_position(tmp_path: Path, capfd) -> None:
+    """Two volumes under one Series Instance UID (e.g. two echoes) are not one volume."""
+    values = np.random.default_rng(4).integers(-1000, 2000, size=(3, 7, 9)).astype(np.int16)
+    folder = tmp_path / "echoes"
+    _write_series(folder, values, 0.0, 2.5, "E2")  # the series UID is left as it is
+    _write_series(folder, values, 0.0, 2.5, "F2")
+    assert "several slices of the series share one position" in _read_error(folder, capfd)
 
 
 # ---------------------------------------------------------------------------------------------------------------

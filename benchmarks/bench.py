@@ -58,6 +58,13 @@ TARGET_PIPELINE_256_UINT8_S = 0.5
 TARGET_PIPELINE_512_INT16_S = 3.0
 TARGET_PEAK_512_INT16_MB = 1.5 * 1024
 
+# Targets of issue 12: the similarity within this multiple of the numpy floor; the 512^3 int16 design's process peak.
+TARGET_FLOOR_MULTIPLE = 2.2
+TARGET_PEAK_512_INT16_ISSUE12_MB = 700.0
+TARGET_PEAK_1024_OUT_OF_CORE_MB = 1024.0
+# Cells per chunk tried for the floor; the fastest on this machine is the floor.
+FLOOR_CHUNK_CELLS = (1 << 17, 1 << 18, 1 << 19)
+
 STAGES = ("load", "quantize", "similarity", "clustering", "classes", "tf", "render")
 PIPELINE_STAGES = ("quantize", "similarity", "clustering", "classes", "tf")
 
@@ -127,7 +134,7 @@ def _load_volume(cfg: dict) -> tuple[Any, tuple[float, float, float]]:
     """The configuration's volume ``[k, j, i]`` and spacing (x, y, z) mm."""
     import numpy as np
 
-    from IsoSimilarityTFLib.phantom import head_phantom
+    from isosimtf.phantom import head_phantom
 
     source = cfg["source"]
     if source == "phantom":
@@ -141,8 +148,10 @@ def _load_volume(cfg: dict) -> tuple[Any, tuple[float, float, float]]:
     if source == "noise-uint8":
         size = cfg["size"]
         return np.random.default_rng(0).integers(0, 256, (size, size, size), dtype=np.uint8), (1.0, 1.0, 1.0)
+    if source == "phantom-dask":
+        return _dask_phantom(cfg["size"]), (1.0, 1.0, 1.0)
     if source in ("head-ct", "brain-mri"):
-        from IsoSimilarityTFLib.volume_io import read_volume, real_dataset_path
+        from isosimtf.volume_io import read_volume, real_dataset_path
 
         path = real_dataset_path(source)
         if path is None:
@@ -150,6 +159,34 @@ def _load_volume(cfg: dict) -> tuple[Any, tuple[float, float, float]]:
         volume = read_volume(path)
         return volume.values, volume.spacing
     raise ValueError(f"unknown source {source!r}")
+
+
+def _dask_phantom(size: int) -> Any:
+    """A volume larger than it needs to be in memory: the 512^3 int16 phantom in a raw file (written once to the temp
+    folder), read lazily by dask in 32-plane chunks and tiled ``size // 512`` times along every axis."""
+    import tempfile
+
+    import dask
+    import dask.array as da
+    import numpy as np
+
+    from isosimtf.phantom import head_phantom
+
+    path = Path(tempfile.gettempdir()) / "isosimtf-bench-phantom-512-int16.raw"
+    if not path.exists():
+        head_phantom(512, seed=0).values.astype("<i2").tofile(path)
+    planes, plane_shape = 32, (512, 512)
+
+    def read(first: int) -> Any:
+        with open(path, "rb") as raw:
+            raw.seek(first * 512 * 512 * 2)
+            return np.fromfile(raw, dtype="<i2", count=planes * 512 * 512).reshape(planes, *plane_shape)
+
+    chunks = [
+        da.from_delayed(dask.delayed(read)(first), (planes, *plane_shape), "<i2") for first in range(0, 512, planes)
+    ]
+    tile, tiles = da.concatenate(chunks), size // 512
+    return da.block([[[tile] * tiles] * tiles] * tiles)
 
 
 # ----------------------------------------------------------------------------------------------------- child side
@@ -274,7 +311,7 @@ def _child_pipeline(cfg: dict) -> dict:
         out["similarity_levels"] = {"levels": int(cfg["extra_levels"]), "median_s": _median(extra), "times": extra}
 
     if cfg.get("render"):
-        from IsoSimilarityTFLib.rendering import render_volume
+        from isosimtf.rendering import render_volume
 
         size = (512, 512)
         start = time.perf_counter()
@@ -301,13 +338,86 @@ def _child_pipeline(cfg: dict) -> dict:
     return out
 
 
+def similarity_floor(bins: Any, chunk_cells: int) -> Any:
+    """The numpy floor of the similarity stage (issue 12): what no numpy similarity can do with less.
+
+    Only the unit cells: their 2x2x2 minimum and maximum (three pairwise calls each, into preallocated buffers) and a
+    bincount of the (min, max) pairs packed into a uint16 index, in chunks of about ``chunk_cells`` cells that stay in
+    cache. No octree levels, no normalization. ``bins``: 3-D uint8. Returns the ``(256, 256)`` joint histogram.
+    """
+    import numpy as np
+
+    n0, n1, n2 = bins.shape
+    planes = max(1, chunk_cells // ((n1 - 1) * (n2 - 1)))
+    pairs = np.empty((planes, n1, n2), dtype=np.uint8)
+    rows = np.empty((planes, n1 - 1, n2), dtype=np.uint8)
+    low, high = np.empty((2, planes, n1 - 1, n2 - 1), dtype=np.uint8)
+    index = np.empty((planes, n1 - 1, n2 - 1), dtype=np.uint16)
+    counts = np.zeros(1 << 16, dtype=np.int64)
+    for first in range(0, n0 - 1, planes):
+        p = min(planes, n0 - 1 - first)
+        voxels = bins[first : first + p + 1]
+        for reduce, out in ((np.minimum, low), (np.maximum, high)):
+            reduce(voxels[:-1], voxels[1:], out=pairs[:p])
+            reduce(pairs[:p, :-1], pairs[:p, 1:], out=rows[:p])
+            reduce(rows[:p, :, :-1], rows[:p, :, 1:], out=out[:p])
+        np.left_shift(low[:p], 8, out=index[:p], dtype=np.uint16)
+        np.bitwise_or(index[:p], high[:p], out=index[:p])
+        counts += np.bincount(index[:p].reshape(-1), minlength=1 << 16)
+    return counts.reshape(256, 256)
+
+
+def _child_floor(cfg: dict) -> dict:
+    """Our similarity (all levels, defaults) against the numpy floor, interleaved in one process."""
+    import numpy as np
+
+    from IsoSimilarityTFLib import octree_levels, quantize, similarity_matrix
+    from IsoSimilarityTFLib.similarity import interval_histograms
+
+    values, _ = _load_volume(cfg)
+    bins = quantize(values, 256).bins
+    del values
+    all_levels = len(octree_levels(tuple(n - 1 for n in bins.shape)))
+
+    def timed(function: Callable, *args: Any) -> float:
+        start = time.perf_counter()
+        function(*args)
+        return time.perf_counter() - start
+
+    chunk_times = {}
+    for chunk in FLOOR_CHUNK_CELLS:
+        similarity_floor(bins, chunk)
+        chunk_times[chunk] = min(timed(similarity_floor, bins, chunk) for _ in range(3))
+    chunk = min(chunk_times, key=chunk_times.get)
+    _, _, unit_level = next(interval_histograms(bins, 256, all_levels))
+    floor_times, ours_times = [], []
+    similarity_matrix(bins, 256)
+    for _ in range(int(cfg["repeats"])):
+        floor_times.append(timed(similarity_floor, bins, chunk))
+        ours_times.append(timed(similarity_matrix, bins, 256))
+    floor, ours = _median(floor_times), _median(ours_times)
+    return {
+        "config": cfg,
+        "shape": list(bins.shape),
+        "floor_chunk_cells": chunk,
+        "floor_chunk_best_of_3_s": {str(k): v for k, v in chunk_times.items()},
+        "floor_median_s": floor,
+        "ours_median_s": ours,
+        "multiple": ours / floor,
+        "floor_times": floor_times,
+        "ours_times": ours_times,
+        "floor_equals_unit_level_histogram": bool(np.array_equal(similarity_floor(bins, chunk), unit_level)),
+        "loadavg_end": os.getloadavg(),
+    }
+
+
 def _child_reference(cfg: dict) -> dict:
     """Fast similarity against the explicit incidence-matrix reference on one small phantom."""
     import numpy as np
+    from reference import reference_similarity_matrix
 
     from IsoSimilarityTFLib import quantize, similarity_matrix
-    from IsoSimilarityTFLib.phantom import head_phantom
-    from IsoSimilarityTFLib.reference import reference_similarity_matrix
+    from isosimtf.phantom import head_phantom
 
     meter = PeakMeter()
     phantom = head_phantom(cfg["size"], seed=0)
@@ -347,7 +457,8 @@ def _child_reference(cfg: dict) -> dict:
 
 def _child_main(text: str) -> None:
     cfg = json.loads(text)
-    result = _child_reference(cfg) if cfg["kind"] == "reference" else _child_pipeline(cfg)
+    children = {"reference": _child_reference, "floor": _child_floor, "pipeline": _child_pipeline}
+    result = children[cfg["kind"]](cfg)
     print(CHILD_MARK + json.dumps(result), flush=True)
 
 
@@ -504,7 +615,34 @@ def configurations(quick: bool) -> dict[str, list[dict]]:
                 "reference_repeats": 3 if n <= 24 else 1,
             }
         )
-    return {"sizes": sizes, "real": real, "targets": targets, "bins": bins, "reference": reference}
+    floor = [
+        {"kind": "floor", "name": "floor 256^3 uint8", "source": "phantom-uint8", "size": 256, "repeats": 11},
+        {"kind": "floor", "name": "floor 512^3 int16, 256 bins", "source": "phantom", "size": 512, "repeats": 7},
+    ]
+    if quick:
+        for cfg in floor:
+            cfg["repeats"] = 5
+    out_of_core = [
+        {
+            "kind": "pipeline",
+            "name": "out of core: 1024^3 int16 dask (raw file)",
+            "source": "phantom-dask",
+            "size": 1024,
+            "repeats": 1,
+            "render": False,
+            "repeat_load": False,
+            "options": {"unconverged": "keep"},
+        }
+    ]
+    return {
+        "floor": floor,
+        "out_of_core": out_of_core,
+        "sizes": sizes,
+        "real": real,
+        "targets": targets,
+        "bins": bins,
+        "reference": reference,
+    }
 
 
 # ----------------------------------------------------------------------------------------------------- reporting
@@ -610,6 +748,73 @@ def build_report(machine: dict, groups: dict[str, list[dict]], quick: bool, wall
     md.append(
         "\n\nThe 256^3 uint8 case is the phantom rescaled to 8 bits (8 HU per step); the 512^3 int16 case is the "
         "phantom. Process peak RSS includes the interpreter, the libraries and the input volume.\n"
+    )
+
+    # ---- issue 12: the numpy floor
+    floor_rows, floor_summary, verdicts12 = [], [], []
+    for r in groups.get("floor", []):
+        name = r["config"]["name"]
+        if "error" in r:
+            floor_rows.append([name, "-", "-", r["error"], "-", "-"])
+            continue
+        floor_rows.append(
+            [
+                name,
+                _fmt_s(r["floor_median_s"]),
+                _fmt_s(r["ours_median_s"]),
+                f"{r['multiple']:.2f}x",
+                f"{r['floor_chunk_cells'] // 1024}K",
+                "yes" if r["floor_equals_unit_level_histogram"] else "NO",
+            ]
+        )
+        floor_summary.append({k: r[k] for k in ("floor_median_s", "ours_median_s", "multiple")} | {"name": name})
+        verdicts12.append(
+            [
+                f"similarity / numpy floor, {name.removeprefix('floor ')}",
+                f"<= {TARGET_FLOOR_MULTIPLE}x",
+                f"{r['multiple']:.2f}x",
+                "PASS" if r["multiple"] <= TARGET_FLOOR_MULTIPLE else "FAIL",
+            ]
+        )
+    if big:
+        peak = big["process_peak_mb"]
+        verdicts12.append(
+            [
+                "512^3 int16 whole design, process peak RSS",
+                f"<= {TARGET_PEAK_512_INT16_ISSUE12_MB:.0f} MB",
+                f"{peak:.0f} MB (pipeline's own increase {big['pipeline_peak_increase_mb']:.0f} MB)",
+                "PASS" if peak <= TARGET_PEAK_512_INT16_ISSUE12_MB else "FAIL",
+            ]
+        )
+    out_of_core = _by_name(everything, "out of core: 1024^3 int16 dask (raw file)")
+    if out_of_core and "error" not in out_of_core:
+        peak = out_of_core["process_peak_mb"]
+        verdicts12.append(
+            [
+                "1024^3 int16 (2 GB) designed out of core (dask over a raw file), process peak RSS",
+                f"<= {TARGET_PEAK_1024_OUT_OF_CORE_MB:.0f} MB",
+                f"{peak:.0f} MB in {_fmt_s(out_of_core['median_s']['pipeline'])}",
+                "PASS" if peak <= TARGET_PEAK_1024_OUT_OF_CORE_MB else "FAIL",
+            ]
+        )
+    summary["floor"] = floor_summary
+    summary["targets"] += [dict(zip(["target", "limit", "measured", "verdict"], v)) for v in verdicts12]
+    md.append("\n## Targets of issue 12\n")
+    md.append(_table(["target", "limit", "measured", "verdict"], verdicts12))
+    md.append("\n\n### Similarity against the numpy floor (same process, interleaved)\n")
+    md.append(
+        _table(
+            ["case", "floor (median)", "ours (median)", "ours / floor", "floor chunk", "floor = our unit level"],
+            floor_rows,
+        )
+    )
+    md.append(
+        "\n\nThe floor (`similarity_floor` in this file) is the least any numpy similarity must do: the unit cells' "
+        "2x2x2 min and max and a bincount of their (min, max) pairs packed into a uint16 index, in cache-sized chunks "
+        "(the fastest of "
+        + ", ".join(f"{c // 1024}K" for c in FLOOR_CHUNK_CELLS)
+        + " cells on this machine); no octree levels, no normalization. Ours is `similarity_matrix` with the defaults "
+        "(256 bins, all levels). Each repetition runs the floor then ours; medians over the repetitions.\n"
     )
 
     # ---- per configuration stage table
@@ -865,6 +1070,11 @@ def print_console(summary: dict, groups: dict[str, list[dict]]) -> None:
             f"{t['similarity_speedup']:,.0f}x; classification 22-50 s vs {_fmt_s(t['clustering_s'])} = "
             f"{t['classification_speedup'][0]:,.0f}x-{t['classification_speedup'][1]:,.0f}x"
         )
+    for floor in summary.get("floor", []):
+        print(
+            f"{floor['name']}: floor {_fmt_s(floor['floor_median_s'])}, ours {_fmt_s(floor['ours_median_s'])}, "
+            f"{floor['multiple']:.2f}x the floor"
+        )
     print("\ntargets:")
     for v in summary["targets"]:
         print(f"  {v['verdict']}: {v['target']} {v['limit']}: {v['measured']}")
@@ -874,7 +1084,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="short run; writes bench-quick.md/.json")
     parser.add_argument("--out", type=Path, default=RESULTS, help="results folder (default benchmarks/results)")
-    parser.add_argument("--only", default=None, help="comma-separated sections: sizes,real,targets,bins,reference")
+    parser.add_argument("--only", default=None, help="comma-separated sections of the run")
     parser.add_argument("--child", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child is not None:
@@ -896,6 +1106,11 @@ def main(argv: list[str] | None = None) -> int:
             result = run_child(cfg, timeout)
             if "error" in result:
                 log(f"    ERROR: {result['error']}")
+            elif cfg["kind"] == "floor":
+                log(
+                    f"    floor {_fmt_s(result['floor_median_s'])}, ours {_fmt_s(result['ours_median_s'])}: "
+                    f"{result['multiple']:.2f}x"
+                )
             elif cfg["kind"] == "reference":
                 log(f"    fast {_fmt_s(result['fast_median_s'])}, reference {_fmt_s(result['reference_median_s'])}")
             else:

@@ -106,8 +106,8 @@ PHANTOM_NOISE_HU, PHANTOM_BLUR_MM = 20.0, 1.0
 
 
 def _phantom() -> tuple:
-    from IsoSimilarityTFLib.phantom import TISSUES, head_phantom
-    from IsoSimilarityTFLib.report import load_input
+    from isosimtf.inputs import load_input
+    from isosimtf.phantom import TISSUES, head_phantom
 
     volume = load_input("phantom")
     labels = head_phantom(volume.values.shape[0], seed=0, noise_hu=PHANTOM_NOISE_HU, blur_mm=PHANTOM_BLUR_MM).labels
@@ -116,7 +116,7 @@ def _phantom() -> tuple:
 
 def _file(path: str) -> Callable[[], tuple]:
     def load() -> tuple:
-        from IsoSimilarityTFLib.volume_io import read_volume
+        from isosimtf.volume_io import read_volume
 
         volume = read_volume(path)
         return volume.values, volume.ijk_to_ras(), None, None
@@ -212,7 +212,7 @@ def show(headless: Any, volume_node: Any, look: Look) -> None:
 
 def render_view(headless: Any, volume_node: Any, looks: list[Look], view: str, size: int) -> dict[str, np.ndarray]:
     """Render every look from ``view`` with one camera framed onto the union of what they show."""
-    from IsoSimilarityTFLib.rendering import content_box, frame_content
+    from isosimtf.rendering import content_box, frame_content
 
     probe = max(64, size // 4)
     headless.render_window.SetSize(probe, probe)
@@ -241,7 +241,7 @@ def gpu_lookup_table_check(values: np.ndarray, ijk_to_ras: np.ndarray, looks: li
     Returns per look name: ``{"fallback": bool, "messages": [...]}``, or ``{"error": text}`` when GPU ray casting
     is not available.
     """
-    from IsoSimilarityTFLib.rendering import HeadlessSlicer, captured_vtk_messages, lookup_table_fallbacks
+    from isosimtf.rendering import HeadlessSlicer, captured_vtk_messages, lookup_table_fallbacks
 
     result: dict[str, Any] = {}
     try:
@@ -283,7 +283,7 @@ def montage(
     tile: int = 384,
 ) -> np.ndarray:
     """A labelled grid: one row per view, one column per look (``(name, title)``), metrics under each tile."""
-    from IsoSimilarityTFLib.report import draw_text
+    from isosimtf.figures import draw_text
 
     gap, left, head, foot, top = 6, 84, 26, 22, 34
     width = left + len(columns) * (tile + gap) + gap
@@ -329,7 +329,7 @@ def run_case(case: Case, presets: PresetsSource, size: int, gpu: bool, backdrop:
     Args:
         backdrop: "black" or "slicer" (Slicer's gradient; the montages are then named ``compare-<key>-slicer.png``).
     """
-    from IsoSimilarityTFLib.rendering import HeadlessSlicer, write_png
+    from isosimtf.rendering import HeadlessSlicer, write_png
 
     started = time.perf_counter()
     values, ijk_to_ras, labels, tissues = case.load()
@@ -397,7 +397,7 @@ def tissue_statistics(values, ijk_to_ras, labels, tissues, looks: list[Look], sp
 
     Samples are attributed with partial volume accounted for: 3 noise sigma of tolerance, the blur's 3-sigma reach.
     """
-    from IsoSimilarityTFLib.phantom import TISSUE_HU
+    from isosimtf.phantom import TISSUE_HU
 
     radius = int(np.ceil(3.0 * PHANTOM_BLUR_MM / min(spacing)))
     attribution = partial_volume_labels(values, labels, TISSUE_HU, 3.0 * PHANTOM_NOISE_HU, radius)

@@ -203,7 +203,7 @@ def _design(values: np.ndarray, spacing, options: dict):
 def run_phantom_case(size: int, noise: float, blur: float, seed: int, variants, with_baselines: bool) -> list[dict]:
     """Every method on one phantom; one record per method."""
     from IsoSimilarityTFLib import quantize
-    from IsoSimilarityTFLib.phantom import head_phantom
+    from isosimtf.phantom import head_phantom
 
     phantom = head_phantom(size, seed=seed, noise_hu=noise, blur_mm=blur)
     values, truth, tissues = phantom.values, phantom.labels, tuple(phantom.tissues)
@@ -260,7 +260,7 @@ def run_phantom_case(size: int, noise: float, blur: float, seed: int, variants, 
 
 def run_real_volume(name: str, variants) -> list[dict]:
     """No ground truth: class count, convergence, and what the background class covers."""
-    from IsoSimilarityTFLib.volume_io import read_volume, real_dataset_path
+    from isosimtf.volume_io import read_volume, real_dataset_path
 
     path = real_dataset_path(name)
     if path is None:
@@ -474,7 +474,7 @@ def main(argv: list[str] | None = None) -> int:
 
     import sklearn
 
-    from IsoSimilarityTFLib.phantom import TISSUES
+    from isosimtf.phantom import TISSUES
 
     started = time.perf_counter()
     quick = args.quick

@@ -53,7 +53,7 @@ class LabelledCase:
 
 
 def phantom_cases(seeds=(0, 1, 2), size: int = 128) -> Iterator[LabelledCase]:
-    from IsoSimilarityTFLib.phantom import head_phantom
+    from isosimtf.phantom import head_phantom
 
     for seed in seeds:
         p = head_phantom(size, seed=seed, noise_hu=20.0, blur_mm=1.0)
@@ -73,7 +73,7 @@ def colin27_cases() -> Iterator[LabelledCase]:
     """Colin27 head and brain levels; nothing when mricron-data is not installed."""
     from scipy import ndimage
 
-    from IsoSimilarityTFLib.volume_io import read_volume, real_dataset_path
+    from isosimtf.volume_io import read_volume, real_dataset_path
 
     path = real_dataset_path("brain-mri")
     if path is None:
@@ -109,7 +109,7 @@ def mni152_case() -> LabelledCase | None:
     """The held-out MNI152 brain, or None when nilearn is not installed."""
     from scipy import ndimage
 
-    from IsoSimilarityTFLib.volume_io import read_volume
+    from isosimtf.volume_io import read_volume
 
     folder = nilearn_data_dir()
     if folder is None:

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from PIL import Image
 
-from IsoSimilarityTFLib.volume_io import real_dataset_path
+from isosimtf.volume_io import real_dataset_path
 
 ROOT = Path(__file__).resolve().parents[1]
 SHOTS = ROOT / "Resources" / "Screenshots"

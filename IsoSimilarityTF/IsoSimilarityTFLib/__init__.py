@@ -2,29 +2,41 @@
 
 The pipeline, one module per step: :mod:`.quantize` (isovalue bins), :mod:`.cells` (unit cells and octree levels),
 :mod:`.similarity` (hierarchical isovalue similarity), :mod:`.clustering` (affinity propagation), :mod:`.classes`
-(ranked classes), :mod:`.tissues` (classes grouped into tissues), :mod:`.look` (default colours and opacities),
-:mod:`.transfer_function` (VTK objects and Slicer files), tied together by
-:func:`design_transfer_function`. Needs numpy, scikit-learn (at clustering time) and VTK; never Qt or the Slicer
-application, so it runs headless.
+(ranked classes), :mod:`.tissues` (classes grouped into tissues), :mod:`.look` (default colours and
+opacities), :mod:`.transfer_function` (VTK objects and Slicer files), tied together by
+:func:`design_transfer_function`, whose options are the table in :mod:`.options` and whose errors are in
+:mod:`.errors`. :mod:`.mrml` puts a design into a Slicer scene, :mod:`.pictures` draws the similarity matrix.
+Needs numpy, scikit-learn (at clustering time) and VTK; never Qt or the Slicer application, so it runs headless.
 """
 
 from .cells import octree_levels, unit_cell_intervals
 from .classes import IsovalueClass
-from .clustering import ClusteringError, ClusteringResult, cluster_isovalues
+from .clustering import ClusteringResult, cluster_isovalues
 from .design import Tissue, TransferFunctionDesign, design_transfer_function
-from .memory import InsufficientMemoryError
+from .errors import (
+    ClusteringError,
+    InsufficientMemoryError,
+    IsoSimilarityTFError,
+    OptionError,
+    TransferFunctionFileError,
+)
+from .options import DEFAULT_OPTIONS, OPTIONS
 from .quantize import Quantization, quantize
 from .similarity import IsovalueSimilarity, isovalue_similarity, similarity_matrix
-from .transfer_function import TransferFunctionFileError, TransferFunctionPoints, read_vp, read_vp_json
+from .transfer_function import TransferFunctionPoints, read_vp, read_vp_json
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "DEFAULT_OPTIONS",
+    "OPTIONS",
     "ClusteringError",
     "ClusteringResult",
     "InsufficientMemoryError",
+    "IsoSimilarityTFError",
     "IsovalueClass",
     "IsovalueSimilarity",
+    "OptionError",
     "Quantization",
     "Tissue",
     "TransferFunctionDesign",

@@ -100,7 +100,7 @@ def background_contact(bins: np.ndarray, labels: np.ndarray, background_id: int)
     """Share of each class's voxels that have a background voxel among their 6 neighbours.
 
     Args:
-        bins: quantized volume, shape ``(n0, n1, n2)``.
+        bins: quantized volume, shape ``(n0, n1, n2)`` (numpy, or dask: only the planes measured are read).
         labels: ``(n_bins,)`` class id per bin.
         background_id: the background class.
 
@@ -109,23 +109,35 @@ def background_contact(bins: np.ndarray, labels: np.ndarray, background_id: int)
         a class with no voxel in the planes measured.
     """
     n_classes = int(labels.max()) + 1
-    class_of_bin = labels.astype(np.uint8 if n_classes <= 256 else np.uint16)
+    # Twice the class id per bin, so that adding "touches the background" (0 or 1) makes one index per voxel.
+    twice_class_of_bin = 2 * np.asarray(labels, dtype=np.uint16)
+    background = 2 * background_id
     step = max(1, bins.size // _CONTACT_SAMPLE_VOXELS)
-    touching = np.zeros(n_classes, dtype=np.int64)
-    totals = np.zeros(n_classes, dtype=np.int64)
+    counts = np.zeros(2 * n_classes, dtype=np.int64)
+    # Each plane's classes are looked up once, and kept while it neighbours the planes measured.
+    looked_up: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     for plane in range(0, bins.shape[0], step):
-        low, high = max(plane - 1, 0), min(plane + 2, bins.shape[0])
-        is_background = class_of_bin[bins[low:high]] == background_id
-        in_plane = is_background[plane - low]
-        near = is_background.any(axis=0)  # the voxel itself and its neighbours in the planes either side
+        window = range(max(plane - 1, 0), min(plane + 2, bins.shape[0]))
+        looked_up = {
+            k: looked_up[k] if k in looked_up else _plane_classes(twice_class_of_bin, np.asarray(bins[k]), background)
+            for k in window
+        }
+        classes, in_plane = looked_up[plane]
+        near = in_plane.copy()
+        for k in window:  # the voxel itself and its neighbours in the planes either side
+            near |= looked_up[k][1]
         near[1:] |= in_plane[:-1]
         near[:-1] |= in_plane[1:]
         near[:, 1:] |= in_plane[:, :-1]
         near[:, :-1] |= in_plane[:, 1:]
-        classes = class_of_bin[bins[plane]]
-        totals += np.bincount(classes.reshape(-1), minlength=n_classes)
-        touching += np.bincount(classes[near], minlength=n_classes)
+        counts += np.bincount((classes + near).reshape(-1), minlength=2 * n_classes)
+    touching, totals = counts[1::2], counts[0::2] + counts[1::2]
     return touching / np.maximum(totals, 1)
+
+
+def _plane_classes(twice_class_of_bin: np.ndarray, plane: np.ndarray, background: int) -> tuple[np.ndarray, np.ndarray]:
+    classes = np.take(twice_class_of_bin, plane)
+    return classes, classes == background
 
 
 def build_classes(

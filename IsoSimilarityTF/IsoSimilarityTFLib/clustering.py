@@ -7,11 +7,17 @@ from typing import Optional, Union
 
 import numpy as np
 
+from .errors import ClusteringError
+
 PREFERENCES = ("median", "minimum")
-
-
-class ClusteringError(RuntimeError):
-    """Affinity propagation could not give a usable grouping (no exemplar, or no convergence where it is required)."""
+# What the design does when affinity propagation does not converge (see design_transfer_function).
+UNCONVERGED_RULES = ("raise-damping", "error", "keep")
+# Frey & Dueck's remedy for oscillating messages: more damping, tried in turn when the requested damping fails.
+# Messages then move (1 - damping) of the way per iteration, so the iteration limits grow by the same factor;
+# otherwise a slow run of unchanged exemplars passes for convergence.
+FALLBACK_DAMPINGS = (0.7, 0.9)
+# Rounding allowed in a similarity matrix's range and symmetry.
+_TOLERANCE = 1e-9
 
 
 @dataclass(frozen=True)
@@ -51,6 +57,20 @@ def preference_value(affinity: np.ndarray, preference: Union[str, float]) -> flo
     if not np.isfinite(value):
         raise ValueError(f"preference must be finite; got {preference!r}")
     return value
+
+
+def unconverged_advice(max_iter: int, dampings: Sequence[float]) -> str:
+    """What to try when affinity propagation did not converge, never suggesting a value already tried."""
+    from .options import OPTIONS
+
+    tips = []
+    most_iter = int(OPTIONS["max_iter"].maximum or max_iter)
+    if max_iter < most_iter:
+        tips.append(f"raise max_iter (e.g. {min(most_iter, max(1000, 5 * max_iter))})")
+    if max(dampings) < 0.95:
+        tips.append("raise damping (e.g. 0.95)")
+    tips.append("lower the preference (fewer classes, e.g. 'minimum')")
+    return ", ".join(tips[:-1]) + (" or " if len(tips) > 1 else "") + tips[-1]
 
 
 def _nearest(members: np.ndarray, n_bins: int) -> np.ndarray:
@@ -93,6 +113,31 @@ def _merge_duplicates(affinity: np.ndarray, labels: np.ndarray, exemplars: np.nd
     return merged_labels.reshape(-1), merged_exemplars
 
 
+def _checked_similarity(similarity: np.ndarray) -> np.ndarray:
+    """``similarity`` as float64 if it is what :func:`similarity_matrix` gives: square, symmetric, in [0, 1]."""
+    similarity = np.asarray(similarity, dtype=np.float64)
+    if similarity.ndim != 2 or similarity.shape[0] != similarity.shape[1]:
+        raise ValueError(f"similarity must be a square matrix; got shape {similarity.shape}")
+    if not np.isfinite(similarity).all():
+        raise ValueError("similarity must be finite")
+    if similarity.size and (similarity.min() < -_TOLERANCE or similarity.max() > 1 + _TOLERANCE):
+        raise ValueError(f"similarity must lie in [0, 1]; got [{similarity.min():g}, {similarity.max():g}]")
+    asymmetry = float(np.abs(similarity - similarity.T).max()) if similarity.size else 0.0
+    if asymmetry > _TOLERANCE:
+        raise ValueError(f"similarity must be symmetric; S and its transpose differ by up to {asymmetry:g}")
+    return similarity
+
+
+def _checked_isovalues(isovalues: Sequence[int], n_bins: int) -> np.ndarray:
+    """Isovalue indices as an array, each an integer in [0, n_bins) (a negative index would wrap around)."""
+    array = np.asarray(isovalues)
+    if array.size and (array.ndim != 1 or not np.issubdtype(array.dtype, np.integer)):
+        raise ValueError(f"empty_isovalues must be a sequence of integer isovalues; got {isovalues!r}")
+    if array.size and (array.min() < 0 or array.max() >= n_bins):
+        raise ValueError(f"empty_isovalues must lie in [0, {n_bins}); got {array.min()} to {array.max()}")
+    return array.astype(np.intp)
+
+
 def cluster_isovalues(
     similarity: np.ndarray,
     *,
@@ -108,7 +153,7 @@ def cluster_isovalues(
         similarity: ``(n_bins, n_bins)`` symmetric similarity in [0, 1] (from :func:`similarity_matrix`).
         preference: ``"median"`` or ``"minimum"`` of the off-diagonal affinities, or a number (affinity units,
             typically in [-1, 0]); higher gives more classes.
-        damping: AP damping factor in [0.5, 1).
+        damping: AP damping factor (see ``options.OPTIONS``: 0.5 to 0.99).
         max_iter: most iterations.
         convergence_iter: iterations with unchanged exemplars that count as converged.
         empty_isovalues: isovalues left out of AP (they cross no cell); each takes the class of the nearest other
@@ -118,27 +163,27 @@ def cluster_isovalues(
         The classes; deterministic for the same input. ``converged`` is reported, not enforced.
 
     Raises:
-        ValueError: bad arguments. ClusteringError: no isovalue to cluster, or AP ended with no exemplar.
+        ValueError: bad arguments (options outside their table entry, a similarity that is not square, symmetric
+            and in [0, 1], isovalues out of range). ClusteringError: no isovalue to cluster, or AP ended with no
+            exemplar.
     """
     from sklearn.cluster import affinity_propagation
     from sklearn.exceptions import ConvergenceWarning
 
-    similarity = np.asarray(similarity, dtype=np.float64)
-    if similarity.ndim != 2 or similarity.shape[0] != similarity.shape[1]:
-        raise ValueError(f"similarity must be a square matrix; got shape {similarity.shape}")
-    if not np.isfinite(similarity).all():
-        raise ValueError("similarity must be finite")
-    if not 0.5 <= damping < 1:
-        raise ValueError(f"damping must be in [0.5, 1); got {damping!r}")
+    from .options import OPTIONS  # the table imports this module for its choices
+
+    damping = OPTIONS["damping"].check(damping)
+    # Iteration limits: any positive integer (the design scales the table's limits up with the fallback dampings).
     for name, value in (("max_iter", max_iter), ("convergence_iter", convergence_iter)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
             raise ValueError(f"{name} must be a positive integer; got {value!r}")
+    similarity = _checked_similarity(similarity)
     n_bins = similarity.shape[0]
     clustered = np.ones(n_bins, dtype=bool)
     if empty_isovalues is None:
         clustered &= similarity.any(axis=1)
     else:
-        clustered[np.asarray(empty_isovalues, dtype=np.intp)] = False
+        clustered[_checked_isovalues(empty_isovalues, n_bins)] = False
     members = np.flatnonzero(clustered)
     if members.size == 0:
         raise ClusteringError("no isovalue crosses any cell: there is nothing to cluster")

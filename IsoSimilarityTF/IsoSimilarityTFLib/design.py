@@ -9,10 +9,13 @@ from typing import Callable, Optional, Union
 
 import numpy as np
 
+from .chunked import is_dask_array, quantize_chunked
 from .classes import IsovalueClass, build_classes, runs
-from .clustering import ClusteringError, cluster_isovalues
-from .look import COLOR_SCHEMES, class_mean_values, default_look, detect_kind, gradient_ramp_top
+from .clustering import FALLBACK_DAMPINGS, cluster_isovalues, unconverged_advice
+from .errors import ClusteringError
+from .look import class_mean_values, default_look, detect_kind, gradient_ramp_top
 from .memory import check_memory
+from .options import DEFAULT_OPTIONS, check_options
 from .quantize import Quantization, quantize
 from .similarity import isovalue_similarity
 from .tissues import TissueHierarchy, tissue_hierarchy
@@ -27,31 +30,7 @@ from .transfer_function import (
 
 StageProgress = Callable[[str, float, str], None]
 
-DEFAULT_OPTIONS = {
-    "n_bins": 256,
-    "value_range": None,
-    "crossing": "inclusive",
-    "normalization": "thesis",
-    "levels": None,
-    "preference": "median",
-    "damping": 0.5,
-    "max_iter": 200,
-    "convergence_iter": 15,
-    "max_classes": 15,
-    "background": "largest",
-    "unconverged": "raise-damping",
-    "tissues": "auto",
-    "colors": "ramp",
-    "modality": None,
-    "gradient_opacity": False,
-}
-
-UNCONVERGED_RULES = ("raise-damping", "error", "keep")
-# Frey & Dueck's remedy for oscillating messages: more damping, tried in turn when the requested damping fails.
-# Messages then move (1 - damping) of the way per iteration, so the iteration limits grow by the same factor;
-# otherwise a slow run of unchanged exemplars passes for convergence.
-FALLBACK_DAMPINGS = (0.7, 0.9)
-
+#: The engine's stages, in order: the keys of ``timings_s`` and the ``stage`` given to ``progress``.
 STAGES = ("quantize", "similarity", "clustering", "classes", "tissues")
 # Scalar opacity unit distance in mm: opacity is per millimetre, as in Slicer's presets, whatever the spacing.
 UNIT_DISTANCE_MM = 1.0
@@ -314,7 +293,7 @@ class TransferFunctionDesign:
     def gradient_ramp_top(self) -> Optional[float]:
         """With option ``gradient_opacity``: the gradient (volume units per mm) from which gradient opacity is 1
         (see :func:`.look.gradient_ramp_top`, from the shown tissues); None when the option is off."""
-        if not self.options.get("gradient_opacity", False):
+        if self.options.get("gradient_opacity", "off") != "auto":
             return None
         values = class_mean_values(self.labels, self.bin_voxels, self.edges, len(self.classes))
         shown = [t for t in self.tissues if t.visible and not t.background]
@@ -458,12 +437,14 @@ def design_transfer_function(
     """Design a transfer function for a volume: quantize, similarity, affinity propagation, classes.
 
     Args:
-        values: 3-D scalar volume (any axis order), or an already quantized volume.
+        values: 3-D scalar volume (any axis order; a ``dask.array`` for volumes larger than memory), or an already
+            quantized volume.
         spacing: voxel spacing in mm, used for the opacity unit distance.
         progress: called as ``progress(stage, fraction, message)``; raising from it cancels the design.
         **options: ``n_bins``, ``value_range``, ``crossing``, ``normalization``, ``levels``, ``preference``,
             ``damping``, ``max_iter``, ``convergence_iter``, ``max_classes``, ``background``, ``unconverged``
-            (see DEFAULT_OPTIONS). ``unconverged`` says what happens when affinity propagation does not converge:
+            (see :data:`.options.OPTIONS`). ``unconverged`` says what happens when affinity propagation does not
+            converge:
             ``"raise-damping"`` retries with damping 0.7 then 0.9 and iteration limits scaled by the slower message
             updates (what was used is reported in ``clustering``), ``"error"`` raises,
             ``"keep"`` keeps the last iteration's grouping (reported as not converged).
@@ -472,26 +453,14 @@ def design_transfer_function(
             it later without recomputing anything. ``colors``: ``"ramp"`` (one intensity-ordered colour per tissue)
             or ``"distinct"`` (the qualitative palette). ``modality``: ``"CT"``, ``"MR"`` or None to detect the
             kind of volume from its dtype and value range (see :func:`.look.detect_kind`). ``gradient_opacity``:
-            True to fade homogeneous insides by a gradient-opacity ramp (see :func:`.look.gradient_ramp_top`).
+            ``"auto"`` fades homogeneous insides by a gradient-opacity ramp (see :func:`.look.gradient_ramp_top`),
+            ``"off"`` (default) leaves it constant.
 
     Raises:
         ValueError: bad volume or option. ClusteringError: affinity propagation gave no usable grouping.
         InsufficientMemoryError: the volume would not fit in the memory available.
     """
-    unknown = sorted(set(options) - set(DEFAULT_OPTIONS))
-    if unknown:
-        raise TypeError(f"unknown option(s): {', '.join(unknown)}; known: {', '.join(DEFAULT_OPTIONS)}")
-    opts = {**DEFAULT_OPTIONS, **options}
-    if opts["unconverged"] not in UNCONVERGED_RULES:
-        raise ValueError(f"unconverged must be one of {UNCONVERGED_RULES}; got {opts['unconverged']!r}")
-    if opts["colors"] not in COLOR_SCHEMES:
-        raise ValueError(f"colors must be one of {COLOR_SCHEMES}; got {opts['colors']!r}")
-    if opts["tissues"] not in ("auto", "all"):
-        _tissue_count(opts["tissues"], TissueHierarchy(order=(0,), boundaries=(), auto=1))  # type check only
-    if opts["modality"] is not None:
-        detect_kind(np.dtype(np.float64), (0.0, 1.0), opts["modality"])  # refuses an unknown modality now
-    if not isinstance(opts["gradient_opacity"], bool):
-        raise ValueError(f"gradient_opacity must be True or False; got {opts['gradient_opacity']!r}")
+    opts = check_options(options)
     spacing = _check_spacing(spacing)
 
     def report(stage: str, fraction: float, message: str) -> None:
@@ -507,11 +476,15 @@ def design_transfer_function(
         yield
         timings[name] = time.perf_counter() - start
 
-    check_memory(np.shape(values.bins if isinstance(values, Quantization) else values), opts["n_bins"])
+    chunked = is_dask_array(values)
+    shape = np.shape(values.bins if isinstance(values, Quantization) else values)
+    check_memory(shape, opts["n_bins"], streamed=chunked)
     with stage("quantize", "quantizing"):
         if isinstance(values, Quantization):
             quantized = values
             opts["n_bins"], opts["value_range"] = quantized.n_bins, list(quantized.value_range)
+        elif chunked:
+            quantized = quantize_chunked(values, opts["n_bins"], opts["value_range"])
         else:
             quantized = quantize(values, opts["n_bins"], opts["value_range"])
 
@@ -547,7 +520,7 @@ def design_transfer_function(
         if not clusters.converged and opts["unconverged"] != "keep":
             raise ClusteringError(
                 f"affinity propagation did not converge in {opts['max_iter']} iterations with damping "
-                f"{', '.join(f'{d:g}' for d in dampings)}; raise max_iter (e.g. 1000) or damping (e.g. 0.95)"
+                f"{', '.join(f'{d:g}' for d in dampings)}; {unconverged_advice(opts['max_iter'], dampings)}"
             )
 
     with stage("classes", "ranking classes"):

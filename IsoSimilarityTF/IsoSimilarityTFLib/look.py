@@ -13,8 +13,8 @@ What Slicer's presets do, and why we do it too (the presets are read to learn fr
   moderate ramp in intensity order that peaks at the main bright tissue (not the brightest one: on a T1 head the
   brightest tissue is scalp fat, which would hide the brain).
 
-Gradient opacity (option ``gradient_opacity``, off by default) scales opacity by the local gradient: 0 where the
-value does not change, 1 from :func:`gradient_ramp_top` up, so homogeneous insides fade and boundaries stay.
+Gradient opacity (option ``gradient_opacity="auto"``; ``"off"`` by default) scales opacity by the local gradient: 0
+where the value does not change, 1 from :func:`gradient_ramp_top` up, so homogeneous insides fade and boundaries stay.
 
 Rules that hold for every kind: the background is hidden; a class most of whose voxels touch the background
 (noise in the air, the partial-volume rim) is hidden; the densest real tissue (holding at least ``REAL_SHARE`` of
@@ -31,6 +31,7 @@ from .classes import PALETTE, IsovalueClass
 
 KINDS = ("ct", "mr", "8bit")
 COLOR_SCHEMES = ("ramp", "distinct")
+GRADIENT_OPACITY = ("off", "auto")
 
 # Tissue colour ramp, low to high intensity: dark red, tan, ivory, white (our own anchors, in 0..1).
 RAMP = (

@@ -7,23 +7,33 @@ taking the user's Slicer session with it. A clear error up front is better.
 import os
 from typing import Optional
 
+from .errors import InsufficientMemoryError
 from .quantize import MAX_BINS
 
-# Bytes per voxel at the peak of the similarity stage, per byte of bin index: the quantized volume, the unit-cell
-# minima and maxima, and the coarser octree levels reduced from them (1/7 of the unit cells).
-_BYTES_PER_VOXEL = 1 + 2 + 2 / 7
+# Bytes per voxel at the peak of the similarity stage, per byte of bin index: the quantized volume (not held for a
+# volume streamed from a dask array), and the hyper-cell minima and maxima of the second finest octree level (1/8 of
+# the voxels; the unit cells are never held whole), of the coarser levels reduced from it (1/7 of that) and of a level
+# nested in no finer one (at most 1/27).
+_BINS_BYTES_PER_VOXEL = 1
+_LEVELS_BYTES_PER_VOXEL = 2 / 8 * (1 + 1 / 7) + 2 / 27
 # Float64 matrices of n_bins x n_bins alive at once while aggregating the levels.
 _MATRICES = 6
 # Slabs, chunks and libraries.
 _OVERHEAD_BYTES = 256 << 20
 
 
-class InsufficientMemoryError(MemoryError):
-    """The volume (or the number of bins) needs more memory than the machine has available."""
-
-
 def available_memory_bytes() -> Optional[int]:
-    """Memory available to a new allocation without swapping, in bytes; None where the system does not say."""
+    """Memory available to a new allocation, in bytes; None where the system does not say.
+
+    The smallest of: the system's available memory, what the process's address-space limit (``ulimit -v``) leaves,
+    and what its container's memory limit (cgroup v2 ``memory.max``) leaves. Any of them refuses an allocation.
+    """
+    limits = [_system_available(), _address_space_left(), _cgroup_left()]
+    known = [n for n in limits if n is not None]
+    return max(0, min(known)) if known else None
+
+
+def _system_available() -> Optional[int]:
     try:
         with open("/proc/meminfo", encoding="ascii") as meminfo:
             for line in meminfo:
@@ -37,30 +47,62 @@ def available_memory_bytes() -> Optional[int]:
         return None
 
 
-def design_memory_bytes(shape: tuple, n_bins: int) -> int:
+def _address_space_left() -> Optional[int]:
+    try:
+        import resource
+
+        limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+        if limit == resource.RLIM_INFINITY:
+            return None
+        with open("/proc/self/statm", encoding="ascii") as statm:
+            used = int(statm.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+        return limit - used
+    except (ImportError, OSError, ValueError, AttributeError):
+        return None
+
+
+def _cgroup_left() -> Optional[int]:
+    try:
+        with open("/sys/fs/cgroup/memory.max", encoding="ascii") as handle:
+            text = handle.read().strip()
+        if text == "max":
+            return None
+        with open("/sys/fs/cgroup/memory.current", encoding="ascii") as handle:
+            return int(text) - int(handle.read().strip())
+    except (OSError, ValueError):
+        return None
+
+
+def design_memory_bytes(shape: tuple, n_bins: int, streamed: bool = False) -> int:
     """Estimated peak memory of designing a transfer function, in bytes, for a volume of ``shape`` voxels.
 
-    Counts what the pipeline allocates beyond the input volume itself.
+    Counts what the pipeline allocates beyond the input volume itself. ``streamed``: the volume is a dask array, read
+    one row of chunks at a time, whose bins are never held whole.
     """
     voxels = 1
     for n in shape:
         voxels *= int(n)
     index_bytes = 1 if n_bins <= 256 else 2
-    return int(voxels * index_bytes * _BYTES_PER_VOXEL + _MATRICES * 8 * n_bins * n_bins + _OVERHEAD_BYTES)
+    per_voxel = _LEVELS_BYTES_PER_VOXEL + (0 if streamed else _BINS_BYTES_PER_VOXEL)
+    return int(voxels * index_bytes * per_voxel + _MATRICES * 8 * n_bins * n_bins + _OVERHEAD_BYTES)
 
 
-def check_memory(shape: tuple, n_bins: int) -> None:
+def check_memory(shape: tuple, n_bins: Optional[int], *, input_bytes: int = 0, streamed: bool = False) -> None:
     """Raise :class:`InsufficientMemoryError` when the design would need more memory than is available.
 
-    A bad ``n_bins`` is let through: the step that uses it says what is wrong with it.
+    Args:
+        shape: the volume's shape.
+        n_bins: the number of bins; None (or a bad value, which the step that uses it reports) counts the input only.
+        input_bytes: bytes still to be allocated for the volume itself (a reader checking a header before reading).
+        streamed: the volume is a dask array designed slab by slab (see :func:`design_memory_bytes`).
     """
-    if isinstance(n_bins, bool) or not isinstance(n_bins, int) or not 2 <= n_bins <= MAX_BINS:
-        return
+    valid_bins = not isinstance(n_bins, bool) and isinstance(n_bins, int) and 2 <= n_bins <= MAX_BINS
     available = available_memory_bytes()
-    needed = design_memory_bytes(shape, n_bins)
+    needed = int(input_bytes) + (design_memory_bytes(shape, n_bins, streamed) if valid_bins else 0)  # type: ignore[arg-type]
     if available is not None and needed > available:
         dims = " x ".join(str(int(n)) for n in shape)
+        bins = f" with {n_bins} bins" if valid_bins else ""
         raise InsufficientMemoryError(
-            f"a volume of {dims} voxels with {n_bins} bins needs about {needed / 2**30:.1f} GB of memory and "
+            f"a volume of {dims} voxels{bins} needs about {needed / 2**30:.1f} GB of memory and "
             f"{available / 2**30:.1f} GB are available: crop or downsample the volume, or use fewer bins"
         )

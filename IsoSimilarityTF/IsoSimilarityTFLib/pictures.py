@@ -139,3 +139,36 @@ def similarity_image(
         image[rows, offset:] = color
         image[offset:, rows] = color
     return image
+
+
+# Icon of a transfer function (the Volume Rendering preset menu shows one per preset) ---------------------------------
+ICON_SIZE = 64
+ICON_BACKGROUND = (40, 40, 40)
+
+
+def transfer_function_icon(design, size: int = ICON_SIZE) -> np.ndarray:
+    """Picture of a design's transfer function: intensity from left to right, each column in its colour, filled from
+    the bottom to a height that grows with its opacity (square root, so faint classes still show).
+
+    Args:
+        design: a :class:`~.design.TransferFunctionDesign`.
+        size: side of the square picture in pixels.
+
+    Returns:
+        ``(size, size, 3)`` uint8 RGB, the top row first.
+    """
+    if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < MIN_SIZE:
+        raise ValueError(f"size must be an integer >= {MIN_SIZE}; got {size!r}")
+    size = int(size)
+    low, high = design.value_range
+    centres = low + (np.arange(size) + 0.5) * (high - low) / size
+    color, opacity = design.transfer_function()(centres)
+    heights = np.round(np.sqrt(np.clip(opacity, 0.0, 1.0)) * size).astype(int)
+    heights[(opacity > 0) & (heights == 0)] = 1
+    image = np.empty((size, size, 3), dtype=np.uint8)
+    image[:] = ICON_BACKGROUND
+    rows_from_bottom = (size - 1 - np.arange(size))[:, None]
+    filled = rows_from_bottom < heights[None, :]
+    colors8 = np.round(255.0 * np.clip(color, 0.0, 1.0)).astype(np.uint8)
+    image[filled] = np.broadcast_to(colors8[None, :, :], (size, size, 3))[filled]
+    return image

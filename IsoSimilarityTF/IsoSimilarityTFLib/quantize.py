@@ -10,8 +10,11 @@ MAX_BINS = 4096
 _SLAB_VOXELS = 1 << 23
 # Integer volumes whose value span is at most this many values are quantized through a lookup table.
 _MAX_LOOKUP_SPAN = 1 << 22
-# Voxels looked up or counted at once: small enough that the index array stays in cache.
+# Voxels looked up at once: small enough that the index array stays in cache.
 _LOOKUP_CHUNK = 1 << 20
+# Values counted per np.bincount call: their 64-bit copy (2 MB) stays in the core's cache, and each call's table
+# (64K entries when counting voxel pairs) is small beside them.
+_COUNT_CHUNK = 1 << 18
 
 
 @dataclass(frozen=True)
@@ -52,20 +55,45 @@ class Quantization:
 
     def voxel_counts(self) -> np.ndarray:
         """Number of voxels per bin, shape ``(n_bins,)`` int64 (the volume's histogram)."""
+        if not isinstance(self.bins, np.ndarray):  # a dask volume: one row of chunks at a time
+            from .chunked import voxel_slabs
+
+            slabs = voxel_slabs(self.bins, halo=0)
+            return sum(Quantization(slab, self.n_bins, self.value_range).voxel_counts() for _, slab in slabs)
         flat = self.bins.reshape(-1)
-        counts = np.zeros(self.n_bins, dtype=np.int64)
-        # Chunks that stay in cache: bincount converts its input to intp first.
-        for start in range(0, flat.size, _LOOKUP_CHUNK):
-            counts += np.bincount(flat[start : start + _LOOKUP_CHUNK], minlength=self.n_bins)
-        return counts
+        if flat.dtype != np.uint8:
+            return _chunked_bincount(flat, self.n_bins)
+        # Two uint8 voxels read as one uint16 index: half as many to count. Each pair counts once for each of its
+        # two bins, whichever byte order the machine has.
+        pairs = _chunked_bincount(flat[: flat.size // 2 * 2].view(np.uint16), 1 << 16).reshape(256, 256)
+        counts = pairs.sum(axis=0) + pairs.sum(axis=1)
+        counts[flat[-1]] += flat.size % 2
+        return counts[: self.n_bins]
 
     def value_to_bin(self, values: np.ndarray) -> np.ndarray:
         """Bin index of each value (values outside ``value_range`` go to the first or last bin)."""
         return _bin_index(np.asarray(values, dtype=np.float64), self.value_range, self.n_bins)
 
 
+def _chunked_bincount(flat: np.ndarray, length: int) -> np.ndarray:
+    """``np.bincount`` of a 1-D integer array, ``length`` entries, counted chunk by chunk."""
+    counts = np.zeros(length, dtype=np.int64)
+    for start in range(0, flat.size, _COUNT_CHUNK):
+        counts += np.bincount(flat[start : start + _COUNT_CHUNK], minlength=length)
+    return counts
+
+
 def validate_volume(values: np.ndarray) -> np.ndarray:
-    """Return ``values`` as an array if it is a 3-D real scalar volume, else raise ``ValueError`` saying why."""
+    """Return ``values`` as an array if it is a 3-D real scalar volume, else raise ``ValueError`` saying why.
+
+    A masked array is refused rather than silently unmasked: the method works on whole 2x2x2 cells, and what a cell
+    with masked corners means is the caller's choice (fill them, e.g. ``values.filled(values.min())``, or crop).
+    """
+    if isinstance(values, np.ma.MaskedArray):
+        raise ValueError(
+            "masked arrays are not supported (the mask would be ignored): fill the masked voxels, e.g. "
+            "values.filled(values.min()), or crop the volume"
+        )
     values = np.asarray(values)
     numeric = np.issubdtype(values.dtype, np.integer) or np.issubdtype(values.dtype, np.floating)
     if values.dtype == bool or not numeric:
@@ -84,13 +112,41 @@ def validate_volume(values: np.ndarray) -> np.ndarray:
     return values
 
 
-def _finite_range(values: np.ndarray) -> tuple[float, float]:
+def _finite_range(values: np.ndarray, n_bins: int) -> tuple[float, float]:
     if np.issubdtype(values.dtype, np.floating):
         finite = np.isfinite(values)
         if not finite.all():
             n_bad = int(values.size - np.count_nonzero(finite))
             raise ValueError(f"the volume has {n_bad} NaN or infinite voxels; replace or mask them first")
-    return float(values.min()), float(values.max())
+        return float(values.min()), float(values.max())
+    low, high = int(values.min()), int(values.max())  # exact, whatever the magnitude
+    step = float(np.spacing(float(max(abs(low), abs(high)))))
+    if high > low and (high - low) / n_bins < step:
+        # Bins (and the transfer function, in float64 volume units) finer than float64 resolves at this magnitude:
+        # e.g. int64 values near 2^62 would all fall in one bin, and the run would "succeed" with one class.
+        raise ValueError(
+            f"the volume's integers span {high - low} around {float(high):.4g}, where float64 steps by {step:g}: "
+            f"too fine for {n_bins} bins; subtract an offset first (e.g. values - values.min())"
+        )
+    return float(low), float(high)
+
+
+def bins_dtype(n_bins: int) -> np.dtype:
+    """The integer type of the bins: uint8 up to 256 bins, else uint16."""
+    return np.dtype(np.uint8 if n_bins <= 256 else np.uint16)
+
+
+def checked_value_range(value_range, data_range: tuple[float, float]) -> tuple[float, float]:
+    """A given ``value_range`` as ``(low, high)``, refused when it misses the volume's ``data_range`` altogether."""
+    from .options import OPTIONS  # the table imports this module for MAX_BINS
+
+    low, high = OPTIONS["value_range"].check(value_range)
+    if high < data_range[0] or low > data_range[1]:
+        raise ValueError(
+            f"value_range [{low:g}, {high:g}] lies outside the volume's values [{data_range[0]:g}, "
+            f"{data_range[1]:g}]: every voxel would fall in one bin"
+        )
+    return low, high
 
 
 def _bin_index(values: np.ndarray, value_range: tuple[float, float], n_bins: int) -> np.ndarray:
@@ -115,20 +171,40 @@ def quantize(values: np.ndarray, n_bins: int = 256, value_range: Optional[tuple[
     if isinstance(n_bins, bool) or not isinstance(n_bins, (int, np.integer)) or not 2 <= n_bins <= MAX_BINS:
         raise ValueError(f"n_bins must be an integer from 2 to {MAX_BINS}; got {n_bins!r}")
     n_bins = int(n_bins)
-    data_range = _finite_range(values)
+    data_range = _finite_range(values, n_bins)
     if value_range is None:
         if data_range[0] == data_range[1]:
             raise ValueError(f"the volume is constant (every voxel is {data_range[0]:g}): there is nothing to classify")
         value_range = data_range
     else:
-        low, high = (float(v) for v in value_range)
-        if not (np.isfinite(low) and np.isfinite(high) and low < high):
-            raise ValueError(f"value_range must be two finite numbers with low < high; got {value_range!r}")
-        value_range = (low, high)
+        value_range = checked_value_range(value_range, data_range)
 
-    out_dtype = np.uint8 if n_bins <= 256 else np.uint16
+    bins = bin_volume(values, n_bins, value_range, data_range)
+    return Quantization(bins=bins, n_bins=n_bins, value_range=value_range)
+
+
+def bin_volume(
+    values: np.ndarray,
+    n_bins: int,
+    value_range: tuple[float, float],
+    data_range: Optional[tuple[float, float]] = None,
+) -> np.ndarray:
+    """The isovalue bin of every voxel, unchecked: :func:`quantize` (or a chunk of a volume it checked) calls it.
+
+    Args:
+        values: 3-D array of integers or floats.
+        n_bins: number of bins (2 to ``MAX_BINS``).
+        value_range: ``(low, high)`` in volume units; values outside fall in the first or last bin.
+        data_range: ``values``' own minimum and maximum, when already known.
+
+    Returns:
+        Bins, same shape as ``values``: uint8 up to 256 bins, else uint16.
+    """
+    out_dtype = bins_dtype(n_bins)
     bins = np.empty(values.shape, dtype=out_dtype)
     flat_in, flat_out = values.reshape(-1), bins.reshape(-1)
+    if data_range is None:
+        data_range = (float(values.min()), float(values.max()))
     span = data_range[1] - data_range[0]
     if np.issubdtype(values.dtype, np.integer) and values.dtype.itemsize <= 2:
         # Exact and fast: every possible 8/16-bit pattern is binned once, then looked up by the raw bits.
@@ -150,4 +226,4 @@ def quantize(values: np.ndarray, n_bins: int = 256, value_range: Optional[tuple[
         for start in range(0, flat_in.size, _SLAB_VOXELS):
             chunk = flat_in[start : start + _SLAB_VOXELS].astype(np.float64)
             flat_out[start : start + _SLAB_VOXELS] = _bin_index(chunk, value_range, n_bins)
-    return Quantization(bins=bins, n_bins=n_bins, value_range=value_range)
+    return bins

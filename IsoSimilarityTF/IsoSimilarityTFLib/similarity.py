@@ -5,18 +5,28 @@ joint histogram of (hyper-cell min, hyper-cell max): for ``i <= j``, an inclusiv
 ``max >= j``, a strict one ``min < i`` and ``max > j``, so ``O_h`` is a 2-D cumulative sum of that table.
 """
 
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
+from itertools import islice
 from typing import Callable, Optional
 
 import numpy as np
 
-from .cells import hyper_cell_intervals, octree_levels, unit_cell_intervals
+from .cells import OctreeBuilder, Shape3, octree_levels, unit_cell_slabs
+from .chunked import is_dask_array, voxel_slabs
+from .memory import check_memory
+from .quantize import MAX_BINS
 
 CROSSINGS = ("inclusive", "strict")
 NORMALIZATIONS = ("thesis", "ma-entezari")
 
-# Hyper-cells binned at once: bounds the int64 index array of the joint histogram to ~64 MB.
-_HISTOGRAM_CHUNK = 1 << 23
+# Unit cells per slab, and (min, max) pairs counted per np.bincount call: bincount first converts its input to a
+# 64-bit index, which must stay in the core's cache (2 MB of 256K cells).
+_SLAB_CELLS = 1 << 18
+# Progress is reported (and the run can be cancelled) at least every this many unit cells: well under a second.
+_PROGRESS_CELLS = 1 << 24
+# Joint-histogram entries of the levels finished together (one cumulative sum for all): 8 MB of int64 per table.
+_STACKED_ENTRIES = 1 << 20
 
 ProgressCallback = Callable[[float, str], None]
 
@@ -44,6 +54,47 @@ class IsovalueSimilarity:
         return np.flatnonzero(~self.cell_counts.any(axis=0))
 
 
+class PairCounter:
+    """Running joint histogram of cell intervals: each (min, max) pair packed into one small integer and counted.
+
+    The packed index (``min * n_bins + max``: uint16 up to 256 bins, else uint32) is gathered in a buffer that stays in
+    cache and counted by ``np.bincount`` when full; with many bins the buffer grows so that each count is worth its
+    ``n_bins ** 2`` table.
+    """
+
+    def __init__(self, n_bins: int) -> None:
+        self.n_bins = int(n_bins)
+        entries = self.n_bins * self.n_bins
+        self._buffer = np.empty(max(_SLAB_CELLS, entries // 4), dtype=np.uint16 if entries <= 1 << 16 else np.uint32)
+        self._filled = 0
+        self._counts = np.zeros(entries, dtype=np.int64)
+
+    def add(self, mins: np.ndarray, maxs: np.ndarray) -> None:
+        """Count cells with these intervals; integer arrays of one shape, values in ``[0, n_bins)``."""
+        mins, maxs = mins.reshape(-1), maxs.reshape(-1)
+        start = 0
+        while start < mins.size:
+            take = min(self._buffer.size - self._filled, mins.size - start)
+            packed = self._buffer[self._filled : self._filled + take]
+            # Unsafe casting: the values are known to fit (checked bins, any integer dtype).
+            np.multiply(mins[start : start + take], self.n_bins, out=packed, dtype=packed.dtype, casting="unsafe")
+            np.add(packed, maxs[start : start + take], out=packed, dtype=packed.dtype, casting="unsafe")
+            self._filled += take
+            start += take
+            if self._filled == self._buffer.size:
+                self._flush()
+
+    def _flush(self) -> None:
+        self._counts += np.bincount(self._buffer[: self._filled], minlength=self._counts.size)
+        self._filled = 0
+
+    @property
+    def table(self) -> np.ndarray:
+        """``(n_bins, n_bins)`` int64; entry ``[a, b]`` is the number of cells with min ``a`` and max ``b``."""
+        self._flush()
+        return self._counts.reshape(self.n_bins, self.n_bins)
+
+
 def joint_interval_histogram(mins: np.ndarray, maxs: np.ndarray, n_bins: int) -> np.ndarray:
     """Count cells per (min, max) pair.
 
@@ -53,14 +104,34 @@ def joint_interval_histogram(mins: np.ndarray, maxs: np.ndarray, n_bins: int) ->
     Returns:
         ``(n_bins, n_bins)`` int64 table; entry ``[a, b]`` is the number of cells with min ``a`` and max ``b``.
     """
-    flat_mins, flat_maxs = mins.reshape(-1), maxs.reshape(-1)
-    counts = np.zeros(n_bins * n_bins, dtype=np.int64)
-    for start in range(0, flat_mins.size, _HISTOGRAM_CHUNK):
-        index = flat_mins[start : start + _HISTOGRAM_CHUNK].astype(np.intp)
-        index *= n_bins
-        index += flat_maxs[start : start + _HISTOGRAM_CHUNK]
-        counts += np.bincount(index, minlength=n_bins * n_bins)
-    return counts.reshape(n_bins, n_bins)
+    counter = PairCounter(n_bins)
+    counter.add(np.asarray(mins), np.asarray(maxs))
+    return counter.table
+
+
+def _upper_overlaps(histograms: np.ndarray, crossing: str) -> np.ndarray:
+    """Cells crossed by both isovalues i <= j, from joint (min, max) histograms; the lower triangle is meaningless.
+
+    Args:
+        histograms: ``(..., n_bins, n_bins)`` tables from :func:`joint_interval_histogram`.
+
+    Returns:
+        Same shape, int64; entry ``[..., i, j]`` for ``i <= j`` is ``O(i, j)``, the diagonal the cell count of each
+        isovalue.
+    """
+    # below[i, j] = cells with min <= i and max >= j, i.e. crossed (inclusively) by both i and j when i <= j.
+    below = np.cumsum(histograms, axis=-2)
+    below = np.cumsum(below[..., ::-1], axis=-1)[..., ::-1]
+    if crossing == "strict":  # min < i and max > j
+        shifted = np.zeros_like(below)
+        shifted[..., 1:, :-1] = below[..., :-1, 1:]
+        below = shifted
+    return below
+
+
+def _symmetric(upper: np.ndarray) -> np.ndarray:
+    """The symmetric matrix whose upper triangle (diagonal included) is that of ``upper``."""
+    return np.triu(upper) + np.triu(upper, 1).T
 
 
 def overlap_counts(histogram: np.ndarray, crossing: str = "inclusive") -> np.ndarray:
@@ -73,15 +144,7 @@ def overlap_counts(histogram: np.ndarray, crossing: str = "inclusive") -> np.nda
     Returns:
         ``(n_bins, n_bins)`` int64, symmetric; the diagonal is the cell count of each isovalue.
     """
-    # below[i, j] = cells with min <= i and max >= j.
-    below = np.cumsum(histogram, axis=0)
-    below = np.cumsum(below[:, ::-1], axis=1)[:, ::-1]
-    if crossing == "strict":
-        shifted = np.zeros_like(below)
-        shifted[1:, :-1] = below[:-1, 1:]
-        below = shifted
-    upper = np.triu(below)
-    return upper + np.triu(below, 1).T
+    return _symmetric(_upper_overlaps(histogram, crossing))
 
 
 def _check_options(crossing: str, normalization: str) -> None:
@@ -98,17 +161,91 @@ def level_weights(n_levels: int) -> np.ndarray:
 
 
 def _check_bins(bins: np.ndarray, n_bins: int) -> np.ndarray:
-    bins = np.asarray(bins)
+    if not is_dask_array(bins):
+        bins = np.asarray(bins)
     if bins.ndim != 3 or min(bins.shape) < 2:
         raise ValueError(f"bins must be a 3-D array with at least 2 voxels per axis; got shape {bins.shape}")
     if not np.issubdtype(bins.dtype, np.integer):
         raise ValueError(f"bins must hold integers (use quantize() first); got dtype {bins.dtype}")
-    if isinstance(n_bins, bool) or not isinstance(n_bins, (int, np.integer)) or n_bins < 2:
-        raise ValueError(f"n_bins must be an integer >= 2; got {n_bins!r}")
-    low, high = int(bins.min()), int(bins.max())
+    if isinstance(n_bins, bool) or not isinstance(n_bins, (int, np.integer)) or not 2 <= n_bins <= MAX_BINS:
+        raise ValueError(f"n_bins must be an integer from 2 to {MAX_BINS}; got {n_bins!r}")
+    check_memory(bins.shape, int(n_bins))  # a clear error, not numpy's MemoryError (or the OOM killer) mid-way
+    # Scan the volume only for the bounds its dtype does not already guarantee (none for uint8 and 256 bins).
+    limits = np.iinfo(bins.dtype)
+    low = int(bins.min()) if limits.min < 0 else 0
+    high = int(bins.max()) if limits.max >= n_bins else 0
     if low < 0 or high >= n_bins:
-        raise ValueError(f"bins must lie in [0, {n_bins}); found values from {low} to {high}")
+        raise ValueError(f"bins must lie in [0, {n_bins}); found {low if low < 0 else high}")
     return bins
+
+
+def interval_histograms(
+    bins: np.ndarray, n_bins: int, levels: int, progress: Optional[ProgressCallback] = None
+) -> Iterator[tuple[int, Shape3, np.ndarray]]:
+    """Joint (min, max) histogram of the hyper-cells of each of the ``levels`` coarsest octree levels.
+
+    One pass over the volume in slabs: each slab's unit cells are counted while in cache and folded into the coarser
+    levels; no array of the volume's size is made, and a dask volume is read one row of chunks at a time. Memory:
+    the second finest level (a quarter of a byte per voxel for uint8 bins) and the coarser ones, plus
+    ``n_bins ** 2`` int64 per table.
+
+    Args:
+        bins: 3-D uint8 or uint16 array (numpy or dask), values in ``[0, n_bins)``.
+        levels: how many of the coarsest levels to count.
+        progress: called as ``progress(fraction, message)`` at least every ``_PROGRESS_CELLS`` unit cells and after
+            each level; raising from it aborts.
+
+    Yields:
+        ``(level, size, histogram)`` finest level first: level number (1 = coarsest), hyper-cell size in unit cells,
+        ``(n_bins, n_bins)`` int64 table.
+    """
+    grid = tuple(n - 1 for n in bins.shape)
+    unit_level = len(octree_levels(grid))
+    builder = OctreeBuilder(grid, bins.dtype)
+    unit_cells = int(np.prod(grid))
+    total = unit_cells + builder.n_cells
+    unit_counter = PairCounter(n_bins) if levels == unit_level else None
+    reported = 0
+    for start, voxels in voxel_slabs(bins) if is_dask_array(bins) else [(0, bins)]:
+        for first, mins, maxs in unit_cell_slabs(voxels, _SLAB_CELLS // (grid[1] * grid[2])):
+            first += start
+            if unit_counter is not None:
+                unit_counter.add(mins, maxs)
+            builder.add_slab(first, mins, maxs)
+            done = (first + len(mins)) * grid[1] * grid[2]
+            if progress is not None and done - reported >= _PROGRESS_CELLS:
+                progress(done / total, "similarity: unit cells")
+                reported = done
+    if unit_counter is not None:
+        table = unit_counter.table
+        unit_counter = None
+        yield unit_level, (1, 1, 1), table
+        del table  # tables are n_bins ** 2 int64 (128 MB at 4096 bins): hold none longer than the consumer does
+    done = unit_cells
+    for level, size, mins, maxs in builder.levels():
+        done += mins.size
+        if level <= levels:
+            yield level, size, joint_interval_histogram(mins, maxs, n_bins)
+        if progress is not None:
+            progress(done / total, f"similarity: level {level} of {unit_level}")
+
+
+def _batched(items: Iterable, size: int) -> Iterator[list]:
+    iterator = iter(items)
+    while batch := list(islice(iterator, size)):
+        yield batch
+
+
+def _add_levels(total: np.ndarray, overlaps: np.ndarray, denominators: np.ndarray, weights: np.ndarray) -> None:
+    """Add ``weights * overlaps / denominators`` of a stack of levels to ``total``, one level after the other.
+
+    Level by level in the stack's order (finest first), so every sum is rounded the same way whatever the batching.
+    """
+    with np.errstate(invalid="ignore", divide="ignore"):
+        terms = np.divide(overlaps, denominators)
+    terms *= weights
+    for term in terms:
+        total += term
 
 
 def isovalue_similarity(
@@ -137,32 +274,34 @@ def isovalue_similarity(
     if bins.dtype not in (np.uint8, np.uint16):
         bins = bins.astype(np.uint8 if n_bins <= 256 else np.uint16)
     weights = level_weights(levels)
-    total = np.zeros((n_bins, n_bins), dtype=np.float64)
+    # Only the upper triangles (i <= j) are summed; the matrix is mirrored at the end. Ma & Entezari's A(i, j) and
+    # A(j, i) = O(i, j) / n(i) are summed apart ("by column" and "by row"), then merged by their element-wise minimum.
+    by_column = np.zeros((n_bins, n_bins), dtype=np.float64)
+    by_row = np.zeros_like(by_column) if normalization == "ma-entezari" else None
     cell_counts = np.zeros((levels, n_bins), dtype=np.int64)
     sizes = [None] * levels
-    mins, maxs = unit_cell_intervals(bins)
-    for done, (level, size, level_mins, level_maxs) in enumerate(hyper_cell_intervals(mins, maxs, levels), 1):
-        overlaps = overlap_counts(joint_interval_histogram(level_mins, level_maxs, n_bins), crossing)
-        counts = np.diagonal(overlaps).copy()
-        cell_counts[level - 1] = counts
-        sizes[level - 1] = size
-        weight = weights[level - 1]
+    histograms = interval_histograms(bins, n_bins, levels, progress)
+    for batch in _batched(histograms, max(1, _STACKED_ENTRIES // (n_bins * n_bins))):
+        overlaps = _upper_overlaps(np.stack([histogram for _, _, histogram in batch]), crossing)
+        counts = np.diagonal(overlaps, axis1=1, axis2=2)
+        stacked_weights = weights[[level - 1 for level, _, _ in batch], np.newaxis, np.newaxis]
         if normalization == "thesis":
-            denominator = np.maximum.outer(counts, counts)
-            level_similarity = np.divide(
-                overlaps, denominator, out=np.zeros_like(total), where=denominator > 0, dtype=np.float64
-            )
+            # O / max(n_i, n_j); where both are 0, so is O, and 0 / 1 gives the 0 the thesis asks for.
+            denominator = np.maximum(counts[:, :, np.newaxis], counts[:, np.newaxis, :])
+            _add_levels(by_column, overlaps, np.maximum(denominator, 1, out=denominator), stacked_weights)
         else:
-            # A_h(i, j) = O_h(i, j) / n_h(j); NaN where isovalue j crosses nothing, and NaN stays NaN in the sum.
-            with np.errstate(invalid="ignore", divide="ignore"):
-                level_similarity = overlaps / counts[np.newaxis, :].astype(np.float64)
-        total += weight * level_similarity
-        if progress is not None:
-            progress(done / levels, f"similarity: level {level} of {levels}")
-    if normalization == "ma-entezari":
-        total = np.fmin(total, total.T)
-        total[np.isnan(total)] = 0.0
-    return IsovalueSimilarity(matrix=total, cell_counts=cell_counts, level_sizes=tuple(sizes), weights=weights)
+            # A(i, j) = O / n_j: NaN where isovalue j crosses nothing, and NaN stays NaN in the sum.
+            _add_levels(by_column, overlaps, counts[:, np.newaxis, :], stacked_weights)
+            _add_levels(by_row, overlaps, counts[:, :, np.newaxis], stacked_weights)
+        for k, (level, size, _) in enumerate(batch):
+            cell_counts[level - 1] = counts[k]
+            sizes[level - 1] = size
+    if normalization == "thesis":
+        matrix = _symmetric(by_column)
+    else:
+        matrix = _symmetric(np.fmin(by_column, by_row))
+        matrix[np.isnan(matrix)] = 0.0
+    return IsovalueSimilarity(matrix=matrix, cell_counts=cell_counts, level_sizes=tuple(sizes), weights=weights)
 
 
 def similarity_matrix(
@@ -177,14 +316,16 @@ def similarity_matrix(
     """Similarity of every pair of isovalues (thesis eq. 3.1 and 3.2).
 
     Args:
-        bins: 3-D integer array (a quantized volume), values in ``[0, n_bins)``, at least 2 voxels per axis.
+        bins: 3-D integer array (a quantized volume, numpy or dask), values in ``[0, n_bins)``, at least 2 voxels per
+            axis.
         n_bins: number of isovalues.
         crossing: ``"inclusive"`` (isovalue crosses a cell when ``min <= mu <= max``, thesis) or ``"strict"``
             (``min < mu < max``, Ma & Entezari's code).
         normalization: ``"thesis"`` (``O / max(n_i, n_j)`` per level) or ``"ma-entezari"`` (``O / n_j`` per level,
             then the element-wise minimum with the transpose).
         levels: use only the ``levels`` coarsest octree levels (default all); weights are re-normalized over them.
-        progress: called as ``progress(fraction, message)`` after each level; raising from it aborts the computation.
+        progress: called as ``progress(fraction, message)`` during the pass over the unit cells (at least every
+            16M cells, a few hundredths of a second) and after each level; raising from it aborts the computation.
 
     Returns:
         ``(n_bins, n_bins)`` float64 symmetric matrix with values in [0, 1].

@@ -13,6 +13,8 @@ from typing import Optional, Union
 
 import numpy as np
 
+from .errors import TransferFunctionFileError
+
 VP_JSON_SCHEMA = (
     "https://raw.githubusercontent.com/slicer/slicer/main/Modules/Loadable/VolumeRendering/Resources/Schema/"
     "volume-property-schema-v1.0.0.json#"
@@ -29,10 +31,6 @@ STEP_BINS = 0.25
 AMBIENT, DIFFUSE, SPECULAR, SPECULAR_POWER = 0.2, 0.8, 0.2, 10.0
 
 PathLike = Union[str, Path]
-
-
-class TransferFunctionFileError(ValueError):
-    """A volume property file that cannot be read."""
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,7 @@
 
 ``isosimtf INPUT -o OUTDIR [options]``. INPUT is a volume file (NRRD, MetaImage, NIfTI, VTK image, ``.npy``,
 InVesalius ``.inv3``), a DICOM series folder, or the word ``phantom``. The options mirror the Python names of
-:func:`design_transfer_function`. The work is done by :mod:`.report`; this module only parses arguments, prints and
+:func:`design_transfer_function`. The work is done by :mod:`.run`; this module only parses arguments, prints and
 turns failures into one error line and an exit status (2: usage or input error, 1: processing error).
 
 Set ``ISOSIMTF_DEBUG=1`` to get the Python traceback of a failure instead of the one-line message.
@@ -10,40 +10,42 @@ Set ``ISOSIMTF_DEBUG=1`` to get the Python traceback of a failure instead of the
 
 import argparse
 import os
+import re
 import sys
 from collections.abc import Sequence
-from typing import NoReturn, Optional, Union
+from typing import Any, Callable, NoReturn, Optional
+
+from IsoSimilarityTFLib.errors import (
+    ClusteringError,
+    IsoSimilarityTFError,
+    OutputError,
+    RenderError,
+)
+from IsoSimilarityTFLib.options import OPTIONS, Option
 
 from . import __version__
-from .classes import BACKGROUND_RULES
-from .clustering import PREFERENCES, ClusteringError
-from .design import DEFAULT_OPTIONS, UNCONVERGED_RULES
-from .memory import InsufficientMemoryError
+from .console import ProgressPrinter, summary_text
+from .inputs import DEFAULT_PHANTOM_SIZE, MAX_PHANTOM_SIZE, MIN_PHANTOM_SIZE
+from .outputs import DEFAULT_BACKDROP, DEFAULT_RAY_CASTING, DEFAULT_SIZE, DEFAULT_VIEW, MAX_SIZE, MIN_SIZE
 from .rendering import BACKDROPS, RAY_CASTING, VIEW_DIRECTIONS
-from .report import (
-    DEFAULT_BACKDROP,
-    DEFAULT_PHANTOM_SIZE,
-    DEFAULT_RAY_CASTING,
-    DEFAULT_SIZE,
-    DEFAULT_VIEW,
-    MIN_SIZE,
-    STAGE_NAMES,
-    OutputError,
-    ProgressPrinter,
-    RenderError,
-    UsageError,
-    run,
-    summary_text,
-)
-from .similarity import CROSSINGS, NORMALIZATIONS
-from .volume_io import VolumeReadError
+from .run import STAGES, run
 
 PROG = "isosimtf"
 EXIT_OK, EXIT_PROCESSING, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 
+#: Any number argparse must take as a value, not an option: argparse's own pattern (``-1``, ``-.5``) misses
+#: ``-1e3`` before Python 3.13, so ``--range -1e3 3e3`` failed with "expected 2 arguments".
+_NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
+
+
 class _Parser(argparse.ArgumentParser):
     """An argument parser whose errors are one line: ``isosimtf: error: ...`` (no usage block)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        # No option of ours looks like a negative number, so every word matching this is a value (argparse's rule).
+        self._negative_number_matcher = _NEGATIVE_NUMBER
 
     def error(self, message: str) -> NoReturn:
         _print_error(f"{message} (see {self.prog} --help)")
@@ -60,14 +62,14 @@ def _print_warning(message: str) -> None:
     sys.stderr.flush()
 
 
-def _integer(minimum: int):
+def _integer(minimum: int, maximum: int) -> Callable[[str], int]:
     def parse(text: str) -> int:
         try:
             value = int(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"must be at least {minimum}, got {value}")
+        if not minimum <= value <= maximum:
+            raise argparse.ArgumentTypeError(f"must be from {minimum} to {maximum}, got {value}")
         return value
 
     return parse
@@ -83,20 +85,40 @@ def _finite(text: str) -> float:
     return value
 
 
-def _damping(text: str) -> float:
-    value = _finite(text)
-    if not 0.5 <= value < 1.0:
-        raise argparse.ArgumentTypeError(f"must be in [0.5, 1), got {value:g}")
-    return value
+def _checked_by(option: Option) -> Callable[[str], Any]:
+    """The argparse ``type`` of an option: parse the word, then check it against the option's table entry."""
+
+    def parse(text: str) -> Any:
+        if option.choices and text.lower() in option.choices:
+            return text.lower()
+        if option.kind in ("int", "choice-or-int"):
+            try:
+                value: Any = int(text)
+            except ValueError:
+                raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        else:
+            value = _finite(text)
+        try:
+            return option.check(value)
+        except ValueError as error:
+            raise argparse.ArgumentTypeError(str(error).replace(f"{option.name} must", "must")) from None
+
+    return parse
 
 
-def _preference(text: str) -> Union[str, float]:
-    if text in PREFERENCES:
-        return text
-    try:
-        return _finite(text)
-    except argparse.ArgumentTypeError:
-        raise argparse.ArgumentTypeError(f"expected {', '.join(PREFERENCES)} or a number, got {text!r}") from None
+def _add_option(group: argparse._ArgumentGroup, option: Option) -> None:
+    """One design option as a command-line argument, from its table entry."""
+    default = f"default: {option.none_means}" if option.none_means else "default %(default)s"
+    arguments: dict[str, Any] = {"dest": option.name, "default": option.default, "help": f"{option.help} ({default})"}
+    if option.kind == "choice":
+        arguments["choices"] = option.choices
+    elif option.kind == "range":
+        arguments.update(type=_finite, nargs=2)
+    else:
+        arguments["type"] = _checked_by(option)
+    if option.metavar is not None:
+        arguments["metavar"] = option.metavar
+    group.add_argument(option.flag, **arguments)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -110,95 +132,21 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=(
             "Outputs: similarity.npy, similarity.png, classes.json, transfer_function.vp.json, transfer_function.vp, "
             "and unless --no-render: render.png, classes.png, scene/scene.mrml. Exit status: 0 success, 2 usage or "
-            "input error, 1 processing error."
+            "input error, 1 processing error (including a volume too large for memory), 130 interrupted."
         ),
     )
     parser.add_argument(
         "input",
         metavar="INPUT",
-        help="volume file (.nrrd, .nhdr, .mha, .mhd, .nii, .nii.gz, .vti, .npy, .inv3), a DICOM series folder, "
-        "or the word 'phantom' for the built-in head phantom (write ./phantom for a file of that name)",
+        help="volume file (.nrrd, .nhdr, .mha, .mhd, .nii, .nii.gz, .vti, .npy, .inv3), a DICOM series folder or a "
+        "file of the series, or the word 'phantom' for the built-in head phantom (./phantom for a file of that name)",
     )
     parser.add_argument("-o", "--output", metavar="OUTDIR", required=True, help="output folder (created if missing)")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
 
     method = parser.add_argument_group("method (the Python option names of design_transfer_function)")
-    method.add_argument(
-        "--bins",
-        type=_integer(2),
-        default=DEFAULT_OPTIONS["n_bins"],
-        metavar="N",
-        help="number of isovalues (n_bins; default %(default)s)",
-    )
-    method.add_argument(
-        "--range",
-        type=_finite,
-        nargs=2,
-        metavar=("LOW", "HIGH"),
-        dest="value_range",
-        help="value range to quantize, in volume units (value_range; default: the volume's min and max)",
-    )
-    method.add_argument(
-        "--crossing",
-        choices=CROSSINGS,
-        default=DEFAULT_OPTIONS["crossing"],
-        help="when an isovalue crosses a cell (default %(default)s)",
-    )
-    method.add_argument(
-        "--normalization",
-        choices=NORMALIZATIONS,
-        default=DEFAULT_OPTIONS["normalization"],
-        help="similarity normalization (default %(default)s)",
-    )
-    method.add_argument(
-        "--levels", type=_integer(1), metavar="K", help="keep only the K coarsest octree levels (default: all)"
-    )
-    method.add_argument(
-        "--preference",
-        type=_preference,
-        default=DEFAULT_OPTIONS["preference"],
-        metavar="median|minimum|NUMBER",
-        help="affinity propagation preference (default %(default)s; lower gives fewer classes)",
-    )
-    method.add_argument(
-        "--damping",
-        type=_damping,
-        default=DEFAULT_OPTIONS["damping"],
-        help="affinity propagation damping in [0.5, 1) (default %(default)s)",
-    )
-    method.add_argument(
-        "--max-iter",
-        type=_integer(1),
-        default=DEFAULT_OPTIONS["max_iter"],
-        metavar="N",
-        help="affinity propagation iteration limit (default %(default)s)",
-    )
-    method.add_argument(
-        "--convergence-iter",
-        type=_integer(1),
-        default=DEFAULT_OPTIONS["convergence_iter"],
-        metavar="N",
-        help="stable iterations that mean convergence (default %(default)s)",
-    )
-    method.add_argument(
-        "--max-classes",
-        type=_integer(0),
-        default=DEFAULT_OPTIONS["max_classes"],
-        metavar="N",
-        help="classes shown besides the background, largest first (default %(default)s)",
-    )
-    method.add_argument(
-        "--background",
-        choices=BACKGROUND_RULES,
-        default=DEFAULT_OPTIONS["background"],
-        help="which class is the hidden background (default %(default)s)",
-    )
-    method.add_argument(
-        "--unconverged",
-        choices=UNCONVERGED_RULES,
-        default=DEFAULT_OPTIONS["unconverged"],
-        help="what to do when affinity propagation does not converge (default %(default)s)",
-    )
+    for option in OPTIONS.values():
+        _add_option(method, option)
 
     output = parser.add_argument_group("output")
     output.add_argument(
@@ -214,7 +162,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     output.add_argument(
         "--size",
-        type=_integer(MIN_SIZE),
+        type=_integer(MIN_SIZE, MAX_SIZE),
         default=DEFAULT_SIZE,
         metavar="PIXELS",
         help="side of render.png in pixels; class tiles are half of it (default %(default)s)",
@@ -239,31 +187,18 @@ def build_parser() -> argparse.ArgumentParser:
     phantom = parser.add_argument_group("phantom (INPUT 'phantom')")
     phantom.add_argument(
         "--phantom-size",
-        type=_integer(8),
+        type=_integer(MIN_PHANTOM_SIZE, MAX_PHANTOM_SIZE),
         default=DEFAULT_PHANTOM_SIZE,
         metavar="N",
         help="voxels per axis (default %(default)s)",
     )
-    phantom.add_argument("--seed", type=_integer(0), default=0, help="phantom seed (default %(default)s)")
+    phantom.add_argument("--seed", type=_integer(0, 2**32 - 1), default=0, help="phantom seed (default %(default)s)")
     return parser
 
 
 def design_options(args: argparse.Namespace) -> dict:
     """The ``design_transfer_function`` options named by the parsed arguments."""
-    return {
-        "n_bins": args.bins,
-        "value_range": tuple(args.value_range) if args.value_range else None,
-        "crossing": args.crossing,
-        "normalization": args.normalization,
-        "levels": args.levels,
-        "preference": args.preference,
-        "damping": args.damping,
-        "max_iter": args.max_iter,
-        "convergence_iter": args.convergence_iter,
-        "max_classes": args.max_classes,
-        "background": args.background,
-        "unconverged": args.unconverged,
-    }
+    return {name: getattr(args, name) for name in OPTIONS}
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
@@ -280,7 +215,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         except SystemExit as exit_request:
             return exit_request.code if isinstance(exit_request.code, int) else EXIT_USAGE
 
-    total = len(STAGE_NAMES) - (1 if args.no_render else 0)
+    total = len(STAGES) - (1 if args.no_render else 0)
     progress = ProgressPrinter(total, stream=sys.stderr, quiet=args.quiet)
     try:
         result = run(
@@ -316,18 +251,16 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
 def _exit_status(error: BaseException) -> int:
     if isinstance(error, (ClusteringError, OutputError, RenderError, MemoryError)):
         return EXIT_PROCESSING
-    if isinstance(error, (UsageError, VolumeReadError, ValueError)):
+    if isinstance(error, ValueError):  # bad input or option, ours (UsageError, VolumeReadError, ...) or numpy's
         return EXIT_USAGE
     return EXIT_PROCESSING
 
 
 def _message(error: BaseException) -> str:
-    if isinstance(error, InsufficientMemoryError):
+    if isinstance(error, IsoSimilarityTFError):
         return str(error)
     if isinstance(error, MemoryError):
         return "out of memory (try a smaller volume or fewer --bins)"
-    if isinstance(error, (ClusteringError, OutputError, RenderError, UsageError, VolumeReadError)):
-        return str(error)
     if isinstance(error, ValueError):
         return f"invalid input or option: {error}"
     if isinstance(error, OSError):

@@ -1,0 +1,273 @@
+"""The module's self-test checks, without Qt: the module's Test class runs them in Slicer ("Reload and Test", ctest),
+and ``make test`` runs the same functions on a headless ``slicer-core`` scene (``Testing/test_module_selftest.py``),
+so a broken self-test cannot hide.
+
+Each check takes ``new_session()`` (a new :class:`~.session.DesignSession`: the module's logic in Slicer) and
+``add_volume(values, spacing, name)`` (adds a scalar volume node to the scene the session works on and returns it).
+Volumes are built in memory; nothing is downloaded.
+"""
+
+import os
+import tempfile
+import unittest
+from typing import Callable
+
+import numpy as np
+
+from . import mrml
+from .classes import build_classes
+from .design import STAGES, TransferFunctionDesign
+from .tissues import tissue_hierarchy
+from .transfer_function import read_vp, read_vp_json
+
+SPACING = (0.5, 0.5, 0.8)
+
+_case = unittest.TestCase()
+_case.maxDiff = None
+
+
+def nested_volume(size: int = 24) -> np.ndarray:
+    """Float volume ``[k, j, i]``: background 0, a cube of 100, a ball of 300 inside, a small ball of 600."""
+    k, j, i = np.mgrid[:size, :size, :size].astype(np.float32)
+    centre = (size - 1) / 2.0
+    radius2 = (i - centre) ** 2 + (j - centre) ** 2 + (k - centre) ** 2
+    values = np.zeros((size, size, size), dtype=np.float32)
+    values[3:-3, 3:-3, 3:-3] = 100.0
+    values[radius2 < (size / 4.0) ** 2] = 300.0
+    values[radius2 < (size / 10.0) ** 2] = 600.0
+    return values
+
+
+def hand_made_design() -> TransferFunctionDesign:
+    """A design made without affinity propagation (no scikit-learn needed): 64 bins over 0..640, 4 classes."""
+    n_bins = 64
+    labels = np.repeat(np.arange(4), [8, 16, 24, 16])
+    exemplars = np.array([4, 16, 36, 56])
+    bin_voxels = np.ones(n_bins, dtype=np.int64)
+    bin_voxels[:8] = 1000
+    edges = np.linspace(0.0, 640.0, n_bins + 1)
+    classes = build_classes(labels, exemplars, bin_voxels, edges, background="largest")
+    similarity = np.where(labels[:, None] == labels[None, :], 1.0, 0.2)
+    design = TransferFunctionDesign(
+        value_range=(0.0, 640.0),
+        n_bins=n_bins,
+        labels=labels,
+        classes=classes,
+        options={"n_bins": n_bins},
+        clustering={"n_iter": 10, "converged": True, "n_classes": 4, "damping": 0.5},
+        timings_s={"quantize": 0.01, "similarity": 0.02, "clustering": 0.03, "classes": 0.0},
+        bin_voxels=bin_voxels,
+        hierarchy=tissue_hierarchy(labels, bin_voxels, [1, 2, 3], similarity),
+        spacing=SPACING,
+        similarity=similarity,
+    )
+    design.regroup("all")
+    return design
+
+
+def opacity_at(property_node, value: float) -> float:
+    return property_node.GetVolumeProperty().GetScalarOpacity().GetValue(value)
+
+
+def _property_node_count(scene) -> int:
+    return scene.GetNumberOfNodesByClass("vtkMRMLVolumePropertyNode")
+
+
+AddVolume = Callable[[np.ndarray, tuple, str], object]
+
+
+def check_edit_and_export(new_session, add_volume: AddVolume) -> None:
+    """Class edits rewrite the transfer function in place; export to .vp.json and .vp."""
+    volume = add_volume(nested_volume(), SPACING, "Nested")
+    session = new_session()
+    design = hand_made_design()
+    property_node = session.apply(volume, design)
+    display_node = session.volume_rendering_logic().GetFirstVolumeRenderingDisplayNode(volume)
+    _case.assertIs(display_node.GetVolumePropertyNode(), property_node)
+    _case.assertEqual(_property_node_count(volume.GetScene()), 1)  # no unused default property node
+    _case.assertAlmostEqual(property_node.GetVolumeProperty().GetScalarOpacityUnitDistance(), design.unit_distance)
+
+    _case.assertIsNotNone(design.background_class)
+    _case.assertEqual(opacity_at(property_node, 40.0), 0.0)  # background hidden
+    top = design.classes[-1]  # bins 48..63: values 480..640
+    volume_property = property_node.GetVolumeProperty()
+    session.set_class_opacity(top.id, 0.75)
+    _case.assertIs(property_node.GetVolumeProperty(), volume_property)  # edited in place, not replaced
+    _case.assertAlmostEqual(opacity_at(property_node, 560.0), 0.75, places=6)
+    session.set_class_color(top.id, (0.0, 0.0, 1.0))
+    _case.assertAlmostEqual(volume_property.GetRGBTransferFunction().GetColor(560.0)[2], 1.0, places=6)
+    session.set_class_visible(top.id, False)
+    _case.assertEqual(opacity_at(property_node, 560.0), 0.0)
+    session.solo_class(top.id)
+    _case.assertAlmostEqual(opacity_at(property_node, 560.0), 0.75, places=6)
+    _case.assertEqual(opacity_at(property_node, 250.0), 0.0)
+    session.solo_class(None)
+    session.show_all_classes()
+    _case.assertGreater(opacity_at(property_node, 250.0), 0.0)
+    _case.assertGreater(opacity_at(property_node, 560.0), 0.0)
+    session.reset_colors()
+    _case.assertNotEqual(tuple(volume_property.GetRGBTransferFunction().GetColor(560.0)), (0.0, 0.0, 1.0))
+    _case.assertFalse(mrml.modified_outside(volume))
+    _case.assertEqual(mrml.design_of_volume(volume).to_dict(), design.to_dict())  # every edit is stored
+
+    with tempfile.TemporaryDirectory() as folder:
+        written = session.export_transfer_function(os.path.join(folder, "tf"))
+        _case.assertTrue(written.endswith(".vp.json"))
+        exported, effective_range = read_vp_json(written)
+        _case.assertAlmostEqual(exported.GetScalarOpacity().GetValue(560.0), opacity_at(property_node, 560.0))
+        _case.assertEqual(effective_range, (0.0, 640.0))
+        legacy = session.export_transfer_function(os.path.join(folder, "tf"), default_extension=".vp")
+        _case.assertTrue(legacy.endswith("tf.vp"))
+        _case.assertAlmostEqual(read_vp(legacy).GetScalarOpacity().GetValue(250.0), opacity_at(property_node, 250.0))
+    _case.assertEqual(session.default_export_extension(False), ".vp")
+    _case.assertEqual(session.default_export_extension(True), ".vp.json")
+
+
+def check_restore(new_session, add_volume: AddVolume) -> None:
+    """A design is restored from the scene, with its unit distance; the similarity matrix only in the same session."""
+    volume = add_volume(nested_volume(), SPACING, "Nested")
+    session = new_session()
+    design = hand_made_design()
+    property_node = session.apply(volume, design)
+    session.set_class_opacity(design.classes[2].id, 0.33)
+    property_node.GetVolumeProperty().SetScalarOpacityUnitDistance(1.0)  # as Slicer 5.8 reads a .vp scene file
+
+    other = new_session()
+    restored = other.restore(volume)
+    _case.assertIsNotNone(restored)
+    _case.assertIs(other.property_node, property_node)
+    _case.assertEqual(len(restored.classes), len(design.classes))
+    _case.assertAlmostEqual(restored.classes[2].opacity, 0.33)
+    _case.assertAlmostEqual(property_node.GetVolumeProperty().GetScalarOpacityUnitDistance(), design.unit_distance)
+    _case.assertIsNone(restored.similarity)  # not stored with the scene
+    # The same session keeps the similarity matrix of its own run, also after showing another volume.
+    _case.assertIsNotNone(session.restore(volume).similarity)
+    _case.assertIsNone(session.restore(add_volume(nested_volume(), SPACING, "Third")))
+    _case.assertIsNotNone(session.restore(volume).similarity)
+    # A volume without a design restores nothing.
+    _case.assertIsNone(other.restore(add_volume(nested_volume(), SPACING, "Other")))
+    _case.assertIsNone(other.design)
+
+
+def check_outside_changes(new_session, add_volume: AddVolume) -> None:
+    """The Volume Rendering module's preset menu, Synchronize and Property selector cannot erase the design, and are
+    noticed; an edit then shows the design again (the panel asks the user first)."""
+    volume = add_volume(nested_volume(), SPACING, "Nested")
+    session = new_session()
+    design = hand_made_design()
+    property_node = session.apply(volume, design)
+    vr_logic = session.volume_rendering_logic()
+    # The preset menu copies the preset into the shown property node (CopyContent replaces all attributes).
+    property_node.CopyContent(vr_logic.GetPresetByName("US-Fetal"))
+    _case.assertEqual(session.outside_change(), mrml.CHANGE_EDITED)
+    _case.assertEqual(mrml.design_of_volume(volume).to_dict(), design.to_dict())
+    _case.assertEqual(new_session().restore(volume).to_dict(), design.to_dict())
+    session.set_class_opacity(design.classes[-1].id, 0.5)
+    _case.assertIsNone(session.outside_change())
+    _case.assertAlmostEqual(opacity_at(property_node, 560.0), 0.5, places=6)
+    # "Synchronize with Volumes module".
+    display_node = vr_logic.GetFirstVolumeRenderingDisplayNode(volume)
+    vr_logic.CopyDisplayToVolumeRenderingDisplayNode(display_node)
+    _case.assertEqual(session.outside_change(), mrml.CHANGE_EDITED)
+    session.update()
+    _case.assertIsNone(session.outside_change())
+    # Another property node picked in the Volume Rendering module: noticed, and an edit shows ours again.
+    users = volume.GetScene().AddNewNodeByClass("vtkMRMLVolumePropertyNode", "Mine")
+    display_node.SetAndObserveVolumePropertyNodeID(users.GetID())
+    _case.assertEqual(session.outside_change(), mrml.CHANGE_OTHER_NODE)
+    session.set_class_visible(design.classes[-1].id, False)
+    _case.assertIs(display_node.GetVolumePropertyNode(), property_node)
+    _case.assertEqual(opacity_at(property_node, 560.0), 0.0)
+    _case.assertIsNotNone(volume.GetScene().GetNodeByID(users.GetID()))  # the user's node is kept
+
+
+def check_segments_and_preset(new_session, add_volume: AddVolume) -> None:
+    """The shown classes as segments (names, colours, voxels), the design as a Volume Rendering preset."""
+    volume = add_volume(nested_volume(), SPACING, "Nested")
+    session = new_session()
+    design = hand_made_design()
+    session.apply(volume, design)
+    shown = [c for c in design.classes if design.is_shown(c.id)]
+    segmentation_node = session.export_segmentation()
+    segmentation = segmentation_node.GetSegmentation()
+    _case.assertEqual(segmentation.GetNumberOfSegments(), len(shown))
+    labels = mrml.class_label_volume(volume, design)
+    for index, isovalue_class in enumerate(shown):
+        segment = segmentation.GetNthSegment(index)
+        _case.assertEqual(segment.GetName(), mrml.segment_name(isovalue_class))
+        _case.assertEqual(list(np.round(segment.GetColor(), 6)), list(np.round(isovalue_class.color, 6)))
+        _case.assertGreater(int(np.count_nonzero(labels == isovalue_class.id)), 0)
+
+    name = f"{volume.GetName()} classes"
+    preset = session.add_preset(name)
+    _case.assertIs(session.volume_rendering_logic().GetPresetByName(name), preset)
+    _case.assertTrue(mrml.shows_design(preset, design))
+    _case.assertIsNotNone(preset.GetNodeReference(session.volume_rendering_logic().GetIconVolumeReferenceRole()))
+    session.volume_rendering_logic().RemovePreset(preset)
+
+
+def check_run(new_session, add_volume: AddVolume) -> None:
+    """A full run (scikit-learn needed), in this process and in a child process: the same design."""
+    volume = add_volume(nested_volume(), SPACING, "Nested")
+    session = new_session()
+    stages = []
+    # More levels than the 24^3 volume has (6): all are used.
+    options = {"n_bins": 64, "levels": 32}
+    design = session.run(volume, options, progress=lambda stage, fraction, message: stages.append(stage))
+    _case.assertGreaterEqual(len(design.classes), 2)
+    _case.assertEqual(design.n_bins, 64)
+    _case.assertIsNone(design.options["levels"])
+    _case.assertEqual(set(design.timings_s), set(STAGES))
+    _case.assertEqual(stages[0], "quantize")
+    _case.assertIn("classes", stages)
+    display_node = session.volume_rendering_logic().GetFirstVolumeRenderingDisplayNode(volume)
+    _case.assertIs(display_node.GetVolumePropertyNode(), session.property_node)
+    # Running again reuses the property node made for the volume.
+    property_node = session.property_node
+    job = session.start(volume, options)
+    reports = []
+    job.wait(timeout=300, progress=lambda *report: reports.append(report))
+    again = session.finish(volume, job)
+    _case.assertIs(session.property_node, property_node)
+    _case.assertFalse(os.path.exists(job.folder))
+    _case.assertEqual(again.to_dict()["classes"], design.to_dict()["classes"])
+    _case.assertEqual(reports[-1][0], STAGES[-1])
+
+
+class _Cancelled(Exception):
+    pass
+
+
+def check_cancel(new_session, add_volume: AddVolume) -> None:
+    """Cancelling leaves the scene untouched, in this process (progress raises) and in a child process (killed)."""
+    volume = add_volume(nested_volume(), SPACING, "Nested")
+    scene = volume.GetScene()
+    session = new_session()
+    nodes = scene.GetNumberOfNodes()
+
+    def cancel(stage, fraction, message):
+        if stage == "similarity":
+            raise _Cancelled()
+
+    with _case.assertRaises(_Cancelled):
+        session.run(volume, {"n_bins": 32}, progress=cancel)
+    _case.assertIsNone(session.design)
+    job = session.start(volume, {"n_bins": 32})
+    job.cancel()
+    _case.assertFalse(job.running)
+    with _case.assertRaises(RuntimeError):
+        session.finish(volume, job)
+    _case.assertFalse(os.path.exists(job.folder))
+    _case.assertIsNone(session.design)
+    _case.assertEqual(scene.GetNumberOfNodes(), nodes)
+
+
+#: Every check, in the order the module's Test class runs them; ``sklearn`` marks those that need scikit-learn.
+CHECKS = {
+    "edit_and_export": (check_edit_and_export, False),
+    "restore": (check_restore, False),
+    "outside_changes": (check_outside_changes, False),
+    "segments_and_preset": (check_segments_and_preset, False),
+    "run": (check_run, True),
+    "cancel": (check_cancel, False),
+}

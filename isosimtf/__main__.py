@@ -1,0 +1,7 @@
+"""``python -m isosimtf``: the same as the ``isosimtf`` command."""
+
+import sys
+
+from .cli import main
+
+sys.exit(main())

@@ -1,0 +1,225 @@
+"""The output folder: data files, classes.json, and the pictures and scene rendered by headless Slicer.
+
+The folder holds ``similarity.npy``, ``similarity.png``, ``classes.json``, ``transfer_function.vp.json``,
+``transfer_function.vp`` and, when rendering, ``render.png`` (the volume rendered with the automatic transfer function
+by Slicer's own volume rendering, headless), ``classes.png`` (one small render per shown class, labelled) and
+``scene/scene.mrml`` (a Slicer scene with the volume and the transfer function, to open in Slicer) and
+``classes.seg.nrrd`` (one segment per shown class, Slicer's segmentation file).
+"""
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+
+from IsoSimilarityTFLib.classes import IsovalueClass
+from IsoSimilarityTFLib.design import TransferFunctionDesign
+from IsoSimilarityTFLib.errors import OutputError, RenderError
+from IsoSimilarityTFLib.pictures import similarity_image
+
+from .console import ProgressPrinter
+from .figures import class_grid, class_label_lines
+from .formatting import value_decimals
+from .output_folder import save_scene
+from .volume_io import Volume
+
+#: Output file names, by role.
+OUTPUT_FILES = {
+    "similarity_npy": "similarity.npy",
+    "similarity_png": "similarity.png",
+    "classes_json": "classes.json",
+    "vp_json": "transfer_function.vp.json",
+    "vp": "transfer_function.vp",
+    "render_png": "render.png",
+    "classes_png": "classes.png",
+    "scene": "scene/scene.mrml",
+    "segmentation": "classes.seg.nrrd",
+}
+
+DEFAULT_VIEW = "anterior"
+DEFAULT_SIZE = 512
+DEFAULT_BACKDROP = "black"
+DEFAULT_RAY_CASTING = "cpu"
+MIN_SIZE = 32
+#: Largest render.png side: bigger off-screen windows fail inside the OpenGL driver (a crash, not an error).
+MAX_SIZE = 4096
+
+
+@dataclass
+class RunResult:
+    """What one run produced.
+
+    Attributes:
+        design: the transfer function design.
+        volume: the input volume.
+        info: the ``input`` entry of ``classes.json``.
+        outdir: the output folder (absolute).
+        files: output role -> path of each file written (see :data:`OUTPUT_FILES`).
+        scene_files: every file of the saved Slicer scene (scene.mrml and its data files).
+        timings_s: seconds per stage: load, quantize, similarity, clustering, classes, write, render, total.
+        warnings: warning lines given during the run.
+    """
+
+    design: TransferFunctionDesign
+    volume: Volume
+    info: dict
+    outdir: Path
+    files: dict[str, Path] = field(default_factory=dict)
+    scene_files: list[Path] = field(default_factory=list)
+    timings_s: dict[str, float] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+
+    def document(self) -> dict:
+        """The ``classes.json`` content: the design's document plus input, tool and output information."""
+        from . import __version__
+
+        document = self.design.to_dict()
+        document["timings_s"] = dict(self.timings_s)
+        document["input"] = self.info
+        document["tool"] = {"name": "isosimtf", "version": __version__}
+        document["outputs"] = {role: path.relative_to(self.outdir).as_posix() for role, path in self.files.items()}
+        # Every file this run wrote: the next run into this folder removes those it does not write again.
+        document["written"] = sorted({p.relative_to(self.outdir).as_posix() for p in self.written()})
+        return document
+
+    def written(self) -> list[Path]:
+        """Every file this run wrote into the output folder."""
+        return [*self.files.values(), *self.scene_files]
+
+
+
+def write_data_files(result: RunResult) -> None:
+    """Write similarity.npy/png, the transfer function files and classes.json into the output folder."""
+    from .rendering import write_png
+
+    design, outdir = result.design, result.outdir
+    paths = {role: outdir / OUTPUT_FILES[role] for role in ("similarity_npy", "similarity_png", "vp_json", "vp")}
+    try:
+        np.save(paths["similarity_npy"], np.asarray(design.similarity, dtype=np.float64))
+        write_png(similarity_image(design.similarity, design.labels, design.class_colors), paths["similarity_png"])
+        design.write_vp_json(paths["vp_json"])
+        design.write_vp(paths["vp"])
+    except OSError as error:
+        raise OutputError(f"cannot write into '{outdir}': {error.strerror or error}") from None
+    result.files.update(paths)
+    write_classes_json(result)
+
+
+def write_classes_json(result: RunResult) -> Path:
+    """(Re)write classes.json with the run's current timings and file list."""
+    path = result.outdir / OUTPUT_FILES["classes_json"]
+    result.files["classes_json"] = path
+    try:
+        path.write_text(json.dumps(result.document(), indent=1) + "\n", encoding="utf-8")
+    except OSError as error:
+        raise OutputError(f"cannot write '{path}': {error.strerror or error}") from None
+    return path
+
+
+def shown_classes(design: TransferFunctionDesign) -> list[IsovalueClass]:
+    """The classes shown by the transfer function, largest first."""
+    return sorted((c for c in design.classes if design.is_shown(c.id)), key=lambda c: c.rank)
+
+
+
+def render_outputs(
+    result: RunResult,
+    *,
+    view: str = DEFAULT_VIEW,
+    size: int = DEFAULT_SIZE,
+    tile_size: Optional[int] = None,
+    progress: Optional[ProgressPrinter] = None,
+    backdrop: str = DEFAULT_BACKDROP,
+    ray_casting: str = DEFAULT_RAY_CASTING,
+) -> None:
+    """Render with Slicer's volume rendering (headless): render.png, classes.png, and save the Slicer scene.
+
+    One headless Slicer serves all pictures: the design goes onto the volume through :func:`mrml.apply_design`;
+    render.png is framed to its content (the volume fills the picture with a small margin), and each class tile
+    shows ``design.solo(class)`` written into the same property node in place, seen from the same narrowed camera.
+    The scene is saved after solo mode is left, so it shows the full transfer function as in render.png.
+
+    Args:
+        backdrop: "black" or "slicer" (Slicer's blue gradient), see ``rendering.BACKDROPS``.
+        ray_casting: "cpu" or "gpu", see ``rendering.RAY_CASTING``.
+    """
+    from IsoSimilarityTFLib.mrml import apply_design, update_property_node
+
+    from .rendering import HeadlessSlicer, write_png
+
+    design, volume, outdir = result.design, result.volume, result.outdir
+    tile_size = tile_size or max(MIN_SIZE, size // 2)
+    classes = shown_classes(design)
+    decimals = value_decimals(design.value_range, design.n_bins)
+    background = (0.0, 0.0, 0.0) if backdrop == "black" else None
+    with HeadlessSlicer(size=(size, size), rendering_method=ray_casting, background=background) as headless:
+        volume_node = headless.add_volume(volume.values, name=volume.name, ijk_to_ras=volume.ijk_to_ras())
+        property_node = apply_design(volume_node, design, headless.volume_rendering_logic)
+        if progress is not None:
+            progress.update("render.png")
+        picture = headless.render(view, frame=True)
+        path = outdir / OUTPUT_FILES["render_png"]
+        write_png(picture, path)
+        result.files["render_png"] = path
+
+        if classes:
+            headless.render_window.SetSize(tile_size, tile_size)
+            tiles, labels, colors = [], [], []
+            previous_solo = design.solo_class
+            try:
+                for number, item in enumerate(classes, 1):
+                    if progress is not None:
+                        progress.update(f"class {number} of {len(classes)}")
+                    design.solo(item.id)
+                    update_property_node(property_node, design)
+                    tiles.append(headless.render(view=None, reset_camera=False))
+                    labels.append(class_label_lines(item, decimals))
+                    colors.append(item.color)
+            finally:
+                design.solo(previous_solo)
+                update_property_node(property_node, design)
+                headless.render_window.SetSize(size, size)
+            path = outdir / OUTPUT_FILES["classes_png"]
+            write_png(class_grid(tiles, labels, colors), path)
+            result.files["classes_png"] = path
+
+        if progress is not None:
+            progress.update("classes.seg.nrrd")
+        write_segmentation(result, headless, volume_node)
+
+        if progress is not None:
+            progress.update("scene")
+        result.scene_files = save_scene(headless.scene, outdir)
+        result.files["scene"] = outdir / OUTPUT_FILES["scene"]
+
+
+def write_segmentation(result: RunResult, headless, volume_node) -> None:
+    """classes.seg.nrrd: one segment per shown class, with its name, colour and voxels (Slicer opens it as a
+    segmentation). The segmentation is not left in the scene saved afterwards."""
+    import slicer
+
+    from IsoSimilarityTFLib.mrml import export_segmentation
+
+    from .rendering import captured_vtk_messages
+
+    segmentations = slicer.vtkSlicerSegmentationsModuleLogic()  # registers the segmentation converters, as Slicer does
+    segmentations.SetMRMLApplicationLogic(headless.app_logic)
+    segmentations.SetMRMLScene(headless.scene)
+    path = result.outdir / OUTPUT_FILES["segmentation"]
+    try:
+        node = export_segmentation(volume_node, result.design)
+        storage = headless.scene.AddNewNodeByClass("vtkMRMLSegmentationStorageNode")
+        storage.SetFileName(str(path))
+        written = storage.WriteData(node)
+        for added in (storage, node.GetDisplayNode(), node):
+            if added is not None:
+                headless.scene.RemoveNode(added)
+    finally:
+        # Detaching the logic makes the subject hierarchy warn "Invalid scene given" on stderr: nothing to report.
+        with captured_vtk_messages():
+            segmentations.SetMRMLScene(None)
+    if not written:
+        raise RenderError(f"Slicer could not write '{path}'")
+    result.files["segmentation"] = path

@@ -1,0 +1,74 @@
+"""How a failed read is reported: one line naming the file, never the C++ libraries' own printing.
+
+VTK reports errors through its output window and its logger; ITK and teem also write straight to the process's
+standard error. During a read both are captured (VTK's messages as the renderer captures them, file descriptor 2 into
+a temporary file), and the first meaningful line can become the reason of a :class:`VolumeReadError`.
+"""
+
+import contextlib
+import os
+import re
+import sys
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+from IsoSimilarityTFLib.errors import VolumeReadError
+
+# VTK's pipeline failure ("Algorithm ... returned failure for request: vtkInformation", then an indented dump of the
+# request) only says that the reader failed, never why.
+_NOISE = "returned failure for request"
+_ITK_LOCATION = re.compile(r"\s*\[vtk\w+\.cxx, line \d+, [^\]]*\]\s*$")
+_TEEM_PREFIX = re.compile(r"^\[\w+\]\s*\w+:\s*")
+
+
+@contextlib.contextmanager
+def captured_native_output() -> Iterator[list[str]]:
+    """Capture VTK's messages and everything written to file descriptor 2 during the block.
+
+    Yields a list that, once the block ends, holds the captured texts: VTK's messages one by one (through
+    :func:`.rendering.captured_vtk_messages`), then what ITK and teem wrote to stderr.
+    """
+    from .rendering import captured_vtk_messages
+
+    texts: list[str] = []
+    sys.stderr.flush()
+    saved_fd = os.dup(2)
+    try:
+        with tempfile.TemporaryFile(mode="w+b") as sink:
+            with captured_vtk_messages() as messages:
+                os.dup2(sink.fileno(), 2)
+                try:
+                    yield texts
+                finally:
+                    os.dup2(saved_fd, 2)
+            sink.seek(0)
+            texts.extend([*messages, sink.read().decode("utf-8", "replace")])
+    finally:
+        os.close(saved_fd)
+
+
+def first_message(texts: list[str]) -> str:
+    """The first meaningful line of captured C++ output (VTK's messages come without heads and object ids)."""
+    for text in texts:
+        for line in text.splitlines():
+            line = line.strip()
+            if line and _NOISE not in line:
+                return line
+    return ""
+
+
+def itk_reason(text: str) -> str:
+    """The innermost reason of an ITK exception's text: the last line of its description, without locations.
+
+    E.g. ``... Description: ITK ERROR: NrrdImageIO(0x..): Read: ... [nrrd] _nrrdEncodingGzip_read: expected 524288
+    bytes but received 7433 [vtkITK...cxx, line 249, ...]`` gives ``expected 524288 bytes but received 7433``.
+    """
+    text = _ITK_LOCATION.sub("", text.split("Description:", 1)[-1].strip())
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    return _TEEM_PREFIX.sub("", lines[-1]) if lines else ""
+
+
+def cannot_read(path: Path, reason: str) -> VolumeReadError:
+    """The error for an unreadable input: ``Cannot read 'PATH': reason`` on one line."""
+    return VolumeReadError(f"Cannot read '{path}': {' '.join(reason.split())}")

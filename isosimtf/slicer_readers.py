@@ -1,0 +1,220 @@
+"""NRRD, MetaImage, NIfTI and DICOM series, read by Slicer's own reader (PyPI's ``slicer-core``), header first.
+
+Slicer loads these files with ``vtkMRMLVolumeArchetypeStorageNode``, which reads through
+``vtkITKArchetypeImageSeriesScalarReader`` (ITK's ImageIO classes; GDCM for DICOM). A DICOM series is grouped and
+sorted as Slicer's DICOM module does (by Series Instance UID, then along the slice normal) and its file list handed to
+the storage node. Here the same reader, set up as the storage node sets it up, first reads
+only the header (``UpdateInformation`` runs ITK's ``ReadImageInformation``), so that the caller can refuse a volume
+before any voxel is allocated: a failed allocation crashes the C++ reader, and no Python code can catch that. Then the
+storage node itself reads the voxels into a ``vtkMRMLScalarVolumeNode``, so values and geometry (IJK to RAS) are
+exactly Slicer's.
+"""
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Optional
+
+import numpy as np
+
+from .read_errors import cannot_read, captured_native_output, first_message, itk_reason
+
+#: File suffixes read by Slicer's ITK-based reader (lower case, longest first); a DICOM file may have any suffix.
+ITK_SUFFIXES = (".nii.gz", ".nrrd", ".nhdr", ".mha", ".mhd", ".nii", ".dcm")
+
+
+@dataclass(frozen=True)
+class ImageHeader:
+    """What the header of an image says, before its voxels are read.
+
+    Attributes:
+        dimensions: voxels along i, j, k (a 2-D image has a 1 there).
+        components: values per voxel (1 for a scalar volume).
+        dtype: the type of the voxel values as Slicer will hold them (e.g. rescaled DICOM values).
+        files: the files that hold the voxels: one, or the slices of a DICOM series in order along the slice normal.
+    """
+
+    dimensions: tuple[int, int, int]
+    components: int
+    dtype: np.dtype
+    files: tuple[Path, ...]
+
+
+def _slicer() -> Any:
+    try:
+        import slicer
+    except ImportError:  # pragma: no cover - depends on the environment
+        raise ImportError(
+            "reading NRRD, MetaImage, NIfTI and DICOM needs Slicer's readers: pip install slicer-core"
+        ) from None
+    return slicer
+
+
+def is_dicom_file(path: Path) -> bool:
+    """Whether ``path`` is a DICOM Part 10 file (the ``DICM`` mark after the 128-byte preamble)."""
+    try:
+        with open(path, "rb") as handle:
+            return handle.read(132)[128:] == b"DICM"
+    except OSError:
+        return False
+
+
+def _reader(files: tuple[Path, ...]) -> Any:
+    """The reader, configured as ``vtkMRMLVolumeArchetypeStorageNode::ReadDataInternal`` configures it."""
+    reader = _slicer().vtkITKArchetypeImageSeriesScalarReader()
+    reader.SetArchetype(str(files[0]))
+    reader.SetSingleFile(int(len(files) == 1))
+    if len(files) > 1:
+        for file in files:
+            reader.AddFileName(str(file))
+    reader.SetUseOrientationFromFile(1)
+    reader.SetOutputScalarTypeToNative()
+    reader.SetDesiredCoordinateOrientationToNative()
+    reader.SetUseNativeOriginOn()
+    return reader
+
+
+_FORMATS = {".nrrd": "NRRD", ".nhdr": "NRRD", ".mha": "MetaImage", ".mhd": "MetaImage", ".nii": "NIfTI", ".gz": "NIfTI"}
+
+
+def _reason(path: Path, texts: list[str]) -> str:
+    """The captured C++ error, as a reason a user can act on."""
+    message = first_message(texts).replace(str(path), "the file")
+    if "contains a 4D image" in message:
+        size = message.split("size:", 1)[-1].split(")", 1)[0].strip()
+        return f"it is a 4-D image ({size} voxels); a 3-D scalar volume is needed"
+    if "Could not create IO object" in message:
+        kind = _FORMATS.get(path.suffix.lower(), "DICOM")
+        return f"Slicer's readers do not recognise it as {kind} (a malformed header, or not a {kind} file)"
+    return message or "Slicer's reader failed without a message"
+
+
+def read_header(path: Path, files: tuple[Path, ...]) -> ImageHeader:
+    """Read only the header of the image held by ``files`` (``path`` names it in messages).
+
+    Raises:
+        VolumeReadError: the reader cannot read the header.
+    """
+    from vtkmodules.util.numpy_support import get_numpy_array_type
+    from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline
+
+    reader = _reader(files)
+    with captured_native_output() as texts:
+        reader.UpdateInformation()
+    extent = reader.GetOutputInformation(0).Get(vtkStreamingDemandDrivenPipeline.WHOLE_EXTENT())
+    if reader.GetErrorCode() or extent is None:
+        raise cannot_read(path, _reason(files[0], texts))
+    dimensions = tuple(int(extent[2 * a + 1] - extent[2 * a] + 1) for a in range(3))
+    dtype = np.dtype(get_numpy_array_type(reader.GetOutputScalarType()))
+    return ImageHeader(dimensions, int(reader.GetNumberOfComponents()), dtype, files)  # type: ignore[arg-type]
+
+
+def _dicom_tags(path: Path) -> dict[str, str]:
+    """The DICOM tags of one file (``"gggg|eeee"`` keys), as the reader's header pass gives them; {} if unreadable.
+
+    Call within :func:`captured_native_output`: an unreadable file makes the reader print.
+    """
+    reader = _reader((path,))
+    reader.UpdateInformation()
+    if reader.GetErrorCode():
+        return {}
+    count = reader.GetNumberOfItemsInDictionary()
+    return {reader.GetNthKey(n): reader.GetNthValue(n).strip() for n in range(count)}
+
+
+def _numbers(text: str, count: int) -> Optional[np.ndarray]:
+    try:
+        values = np.array([float(v) for v in text.split("\\")])
+    except ValueError:
+        return None
+    return values if values.size == count and np.isfinite(values).all() else None
+
+
+def dicom_series(path: Path) -> tuple[Path, ...]:
+    """The slices of one DICOM series, sorted along the slice normal as Slicer's DICOM module sorts them.
+
+    ``path`` is a folder holding one series, or a DICOM file (its series is read from its folder). Slicer's reader
+    alone would take the slices in file-name order; its DICOM module sorts them by Image Position (Patient) along the
+    normal of Image Orientation (Patient) and hands the sorted list to the storage node, as done here.
+
+    Raises:
+        VolumeReadError: no DICOM file; several series in the folder (named, with advice); slices without position
+            or orientation, or sharing a position.
+    """
+    folder = path if path.is_dir() else path.parent
+    files = sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
+    if path.is_dir() and not files:
+        raise cannot_read(path, "the folder is empty (a DICOM series folder was expected)")
+    dicom = [p for p in files if is_dicom_file(p)]
+    if not dicom:
+        raise cannot_read(path, f"no DICOM files found in the folder ({len(files)} other file(s))")
+    series: dict[str, list[tuple[Path, dict[str, str]]]] = {}
+    with captured_native_output():
+        for file in dicom:
+            tags = _dicom_tags(file)
+            if tags:
+                series.setdefault(tags.get("0020|000e", ""), []).append((file, tags))
+    if path.is_dir() and len(series) > 1:
+        listed = "; ".join(f"{len(members)} file(s) from {members[0][0].name}" for members in series.values())
+        raise cannot_read(
+            path,
+            f"the folder holds {len(series)} DICOM series ({listed}); give one file of the series to read as INPUT",
+        )
+    chosen = next((m for m in series.values() if path.is_dir() or any(f == path for f, _ in m)), None)
+    if chosen is None:
+        raise cannot_read(path, "Slicer's DICOM reader cannot read its header")
+    return _sorted_slices(path, chosen)
+
+
+def _sorted_slices(path: Path, members: list[tuple[Path, dict[str, str]]]) -> tuple[Path, ...]:
+    if len(members) == 1:
+        return (members[0][0],)  # one file: a single slice, or a multi-frame volume
+    orientation = _numbers(members[0][1].get("0020|0037", ""), 6)
+    positions = [_numbers(tags.get("0020|0032", ""), 3) for _, tags in members]
+    if orientation is None or any(p is None for p in positions):
+        raise cannot_read(path, "some slices lack a valid Image Position or Image Orientation (Patient)")
+    normal = np.cross(orientation[:3], orientation[3:])
+    distances = np.array([float(np.dot(p, normal)) for p in positions])  # type: ignore[arg-type]
+    order = np.argsort(distances, kind="stable")
+    if np.any(np.diff(distances[order]) <= 1e-6 * max(1.0, float(np.ptp(distances)))):
+        raise cannot_read(path, "several slices of the series share one position (more than one volume in the series)")
+    return tuple(members[n][0] for n in order)
+
+
+def read_image(path: Path, header: ImageHeader) -> tuple[np.ndarray, np.ndarray]:
+    """Read the voxels with Slicer's storage node: ``(values (K, J, I), IJK-to-RAS 4x4 matrix)``.
+
+    Call after :func:`read_header` accepted the size: this allocates the whole volume. ``path`` names the image in
+    messages.
+
+    Raises:
+        VolumeReadError: the voxels cannot be read (truncated or corrupt data).
+    """
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+    from vtkmodules.vtkCommonMath import vtkMatrix4x4
+
+    slicer = _slicer()
+    scene = slicer.vtkMRMLScene()
+    node = scene.AddNewNodeByClass("vtkMRMLScalarVolumeNode")
+    storage = scene.AddNewNodeByClass("vtkMRMLVolumeArchetypeStorageNode")
+    storage.SetFileName(str(header.files[0]))
+    storage.SetSingleFile(int(len(header.files) == 1))
+    if len(header.files) > 1:
+        storage.ResetFileNameList()
+        for file in header.files:
+            storage.AddFileName(str(file))
+    node.SetAndObserveStorageNodeID(storage.GetID())
+    with captured_native_output() as texts:
+        read = storage.ReadData(node)
+    image = node.GetImageData()
+    scalars = image.GetPointData().GetScalars() if read and image is not None else None
+    i, j, k = header.dimensions
+    if scalars is None or scalars.GetNumberOfValues() != i * j * k:
+        messages = storage.GetUserMessages()
+        first = messages.GetNthMessageText(0) if messages.GetNumberOfMessages() else ""
+        detail = itk_reason(first).replace(str(header.files[0]), "the file") or _reason(header.files[0], texts)
+        raise cannot_read(path, f"the voxel data are truncated or corrupt ({detail})")
+    matrix = vtkMatrix4x4()
+    node.GetIJKToRASMatrix(matrix)
+    ijk_to_ras = np.array([[matrix.GetElement(r, c) for c in range(4)] for r in range(4)])
+    # A view on Slicer's buffer (it keeps the VTK array alive): no copy of a volume that may be large.
+    return vtk_to_numpy(scalars).reshape(k, j, i), ijk_to_ras

@@ -1,0 +1,397 @@
+"""Read a scalar volume with its geometry, the way Slicer reads it, refusing from its header what would not fit.
+
+Every reader returns a :class:`Volume`: the voxel values as a ``(K, J, I)`` array (slowest axis first, like
+``slicer.util.arrayFromVolume``) and the spacing, origin and axis directions in Slicer's RAS world.
+
+- NRRD (``.nrrd``, ``.nhdr``), MetaImage (``.mha``, ``.mhd``), NIfTI (``.nii``, ``.nii.gz``), a DICOM file or a DICOM
+  series folder: Slicer's own reader (:mod:`.slicer_readers`, from PyPI's ``slicer-core``), so values and geometry are
+  what Slicer shows. A folder must hold one series; a DICOM file reads the series it belongs to.
+- ``.vti``: VTK's XML image reader; its coordinates are taken as RAS.
+- ``.npy``: its header is checked before the array is loaded (no pickles); spacing 1 mm, origin 0, no rotation.
+- ``.inv3``: an InVesalius project (gzip tar holding ``main.plist`` and the raw int16 ``matrix.dat``), read here since
+  no library reads it.
+
+Before any voxel is allocated, the size given by the header is checked: a 3-D scalar volume, no larger than the file
+can hold (a gzip stream expands at most about 1032 times), and small enough for the memory available
+(:mod:`IsoSimilarityTFLib.memory`). Any failure raises one error with a one-line message naming the file:
+:class:`VolumeReadError`, or :class:`InsufficientMemoryError` for a volume that does not fit.
+"""
+
+import gzip
+import os
+import plistlib
+import re
+import struct
+import tarfile
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional, Union
+
+import numpy as np
+
+from IsoSimilarityTFLib.errors import VolumeReadError
+from IsoSimilarityTFLib.memory import check_memory
+
+from . import slicer_readers
+from .read_errors import cannot_read, captured_native_output, first_message
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+__all__ = ["SUPPORTED_TEXT", "Volume", "VolumeReadError", "read_volume", "real_dataset_path"]
+
+SUPPORTED_TEXT = ".nrrd, .nhdr, .mha, .mhd, .nii, .nii.gz, .vti, .npy, .inv3, a DICOM file or a DICOM series folder"
+
+#: Largest expansion of a deflate (gzip, zlib) stream: a file of N bytes holds at most about 1032 N bytes of voxels.
+_MAX_DEFLATE_RATIO = 1032
+
+#: Debian locations of the real test volumes named in DESIGN.md ("Data to test on").
+_REAL_DATASETS: dict[str, tuple[str, ...]] = {
+    "head-ct": (
+        "/usr/share/doc/invesalius-examples/examples/Cranium.inv3",
+        "/usr/share/invesalius/examples/Cranium.inv3",
+    ),
+    "brain-mri": (
+        "/usr/share/mricron/templates/ch2.nii.gz",
+        "/usr/share/mricron-data/templates/ch2.nii.gz",
+        "/usr/lib/mricron/templates/ch2.nii.gz",
+    ),
+}
+
+#: InVesalius stores axial projects with i towards the patient's left, j towards anterior (it flips DICOM rows)
+#: and k towards superior: in RAS, the columns below.
+_INV3_AXIAL_DIRECTIONS = np.diag([-1.0, 1.0, 1.0])
+
+
+@dataclass(frozen=True, eq=False)
+class Volume:
+    """A scalar volume with its geometry.
+
+    Attributes:
+        values: voxel values, shape ``(K, J, I)`` = (z, y, x), the file's own dtype (e.g. int16 HU for CT).
+        spacing: voxel size in mm along the i, j, k axes (x, y, z order, i.e. ``values.shape[::-1]`` order).
+        origin: RAS position in mm of the centre of voxel ``values[0, 0, 0]``.
+        directions: shape (3, 3); column ``c`` is the unit RAS direction of index axis ``c`` (i, j, k).
+        name: a short name (the file name without its suffix).
+    """
+
+    values: np.ndarray
+    spacing: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    directions: np.ndarray = None  # type: ignore[assignment]  # identity when omitted
+    name: str = "volume"
+
+    def __post_init__(self) -> None:
+        values = np.asarray(self.values)
+        if values.ndim != 3:
+            raise ValueError(f"Volume values must be 3-D (k, j, i); got shape {values.shape}")
+        directions = np.eye(3) if self.directions is None else np.array(self.directions, dtype=float)
+        if directions.shape != (3, 3):
+            raise ValueError(f"Volume directions must be 3x3; got shape {directions.shape}")
+        spacing = tuple(float(s) for s in self.spacing)
+        origin = tuple(float(o) for o in self.origin)
+        if len(spacing) != 3 or len(origin) != 3:
+            raise ValueError("Volume spacing and origin need 3 values each")
+        object.__setattr__(self, "values", values)
+        object.__setattr__(self, "directions", directions)
+        object.__setattr__(self, "spacing", spacing)
+        object.__setattr__(self, "origin", origin)
+
+    @classmethod
+    def from_ijk_to_ras(cls, values: np.ndarray, ijk_to_ras: np.ndarray, name: str) -> "Volume":
+        """A volume from its values and the 4x4 matrix mapping voxel indices (i, j, k, 1) to RAS millimetres."""
+        axes = np.asarray(ijk_to_ras, dtype=float)[:3, :3]
+        spacing = np.linalg.norm(axes, axis=0)
+        return cls(values, tuple(spacing), tuple(np.asarray(ijk_to_ras)[:3, 3]), axes / spacing, name)
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        """Array shape ``(K, J, I)``."""
+        return tuple(int(n) for n in self.values.shape)  # type: ignore[return-value]
+
+    def ijk_to_ras(self) -> np.ndarray:
+        """Return the 4x4 homogeneous matrix mapping voxel indices (i, j, k, 1) to RAS millimetres."""
+        matrix = np.eye(4)
+        matrix[:3, :3] = self.directions * np.asarray(self.spacing)[np.newaxis, :]
+        matrix[:3, 3] = self.origin
+        return matrix
+
+
+def read_volume(path: PathLike, *, n_bins: Optional[int] = None) -> Volume:
+    """Read a scalar 3-D volume from ``path`` (see the module docstring for formats).
+
+    Args:
+        path: a volume file, a DICOM file, or a folder holding one DICOM series.
+        n_bins: the bins the volume will be designed with: the memory check then also counts the design's needs.
+
+    Raises:
+        VolumeReadError: the path is missing, of an unsupported kind, corrupt or truncated, or holds a 2-D, 4-D or
+            multi-component (vector/RGB) image. InsufficientMemoryError: the volume would not fit in memory.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise cannot_read(path, "no such file or directory")
+    name = path.name if path.is_dir() else _stem(path)
+    if path.is_dir() or slicer_readers.is_dicom_file(path):
+        return _read_with_slicer(path, slicer_readers.dicom_series(path), name, n_bins)
+    lower = path.name.lower()
+    if lower.endswith(".npy"):
+        return _read_npy(path, name, n_bins)
+    if lower.endswith(".inv3"):
+        return _read_inv3(path, name, n_bins)
+    if lower.endswith(".vti"):
+        return _read_vti(path, name, n_bins)
+    if lower.endswith(slicer_readers.ITK_SUFFIXES):
+        return _read_with_slicer(path, (path,), name, n_bins)
+    raise cannot_read(
+        path, f"unsupported file type '{''.join(path.suffixes) or path.name}' (expected {SUPPORTED_TEXT})"
+    )
+
+
+def real_dataset_path(name: str) -> Optional[Path]:
+    """Return the installed path of a real test volume, or None when its Debian package is not installed.
+
+    Args:
+        name: ``"head-ct"`` (InVesalius ``Cranium.inv3``, package ``invesalius-examples``) or ``"brain-mri"``
+            (Colin27 ``ch2.nii.gz``, package ``mricron-data``).
+
+    Raises:
+        KeyError: unknown name.
+    """
+    if name not in _REAL_DATASETS:
+        raise KeyError(f"Unknown dataset '{name}'; known: {', '.join(sorted(_REAL_DATASETS))}")
+    for candidate in _REAL_DATASETS[name]:
+        if Path(candidate).is_file():
+            return Path(candidate)
+    return None
+
+
+def _stem(path: Path) -> str:
+    suffix = ".nii.gz" if path.name.lower().endswith(".nii.gz") else path.suffix
+    return path.name[: -len(suffix)] if suffix and len(suffix) < len(path.name) else path.name
+
+
+#: The one header field the size bound needs from a detached header: where its voxels are.
+_DATA_FILE_FIELD = re.compile(r"^(?:data ?file:|ElementDataFile\s*=)[ \t]*(.*?)[ \t]*$", re.I | re.M)
+
+
+def _stored_bytes(path: Path, files: tuple[Path, ...]) -> Optional[int]:
+    """Bytes on disk that hold the voxels, when they are raw, text or deflated (gzip, zlib); else None.
+
+    The header of a ``.nhdr`` / ``.mhd`` names its data file (one field read here); a NRRD in bzip2 (which expands
+    further than deflate) or whose data is a list or pattern of files gives None: only the memory bound applies.
+    """
+    lower = path.name.lower()
+    if not lower.endswith((".nrrd", ".nhdr", ".mhd")):
+        return sum(f.stat().st_size for f in files)
+    with open(path, "rb") as handle:
+        head = handle.read(1 << 16).decode("latin-1").split("\n\n", 1)[0]  # the header only, not the voxels
+    if re.search(r"^encoding:[ \t]*bz", head, re.I | re.M):
+        return None
+    field = _DATA_FILE_FIELD.search(head)
+    if field is None or field.group(1).upper() == "LOCAL":
+        return path.stat().st_size  # the voxels follow the header
+    name = field.group(1)
+    if len(name.split()) > 1 or name.upper().startswith("LIST") or "%" in name:
+        return None
+    data = path.parent / name
+    return path.stat().st_size + (data.stat().st_size if data.is_file() else 0)
+
+
+def _check_size(
+    path: Path,
+    dimensions: tuple[int, ...],
+    components: int,
+    dtype: np.dtype,
+    n_bins: Optional[int],
+    stored_bytes: Optional[int] = None,
+) -> None:
+    """Refuse, from the header alone, what is not a 3-D scalar volume, cannot be in the file, or would not fit.
+
+    Args:
+        dimensions: voxels along i, j, k. components: values per voxel. dtype: the values' type.
+        n_bins: passed to the memory check. stored_bytes: bytes of the file(s) holding the voxels, when the format
+            stores them raw or deflated (the bound above which the header must be lying).
+    """
+    if components != 1:
+        raise cannot_read(
+            path, f"it has {components} components per voxel (a vector or RGB image); only scalar volumes are supported"
+        )
+    size = " x ".join(str(int(d)) for d in dimensions)
+    if len(dimensions) != 3 or min(dimensions) < 1 or sum(int(d) > 1 for d in dimensions) < 3:
+        raise cannot_read(path, f"it is a 2-D image ({size} voxels); a 3-D volume is needed")
+    voxel_bytes = int(np.prod([int(d) for d in dimensions], dtype=np.float64)) * dtype.itemsize
+    if stored_bytes is not None and voxel_bytes > stored_bytes * _MAX_DEFLATE_RATIO:
+        raise cannot_read(
+            path,
+            f"its header announces {size} voxels of {dtype.name} ({voxel_bytes / 2**20:.0f} MiB), more than its "
+            f"{stored_bytes} bytes on disk can hold: it is truncated or corrupt",
+        )
+    check_memory(tuple(int(d) for d in dimensions[::-1]), n_bins, input_bytes=voxel_bytes)
+
+
+def _read_with_slicer(path: Path, files: tuple[Path, ...], name: str, n_bins: Optional[int]) -> Volume:
+    header = slicer_readers.read_header(path, files)
+    stored = _stored_bytes(path, header.files)
+    _check_size(path, header.dimensions, header.components, header.dtype, n_bins, stored)
+    if path.name.lower().endswith((".nii", ".nii.gz")):
+        _check_nifti_complete(path, int(np.prod(header.dimensions)) * header.dtype.itemsize)
+    values, ijk_to_ras = slicer_readers.read_image(path, header)
+    return Volume.from_ijk_to_ras(values, ijk_to_ras, name)
+
+
+def _check_nifti_complete(path: Path, voxel_bytes: int) -> None:
+    """Refuse a truncated NIfTI file: Slicer's NIfTI reader fills the missing voxels with zeros and says nothing.
+
+    The voxels start at ``vox_offset`` (NIfTI-1: float32 at byte 108; NIfTI-2: int64 at byte 168); a ``.nii.gz`` is
+    decompressed as a stream (never held in memory) to count its bytes and to find a truncated or corrupt stream.
+    """
+    opener = gzip.open if path.name.lower().endswith(".gz") else open
+    try:
+        with opener(path, "rb") as handle:
+            head = handle.read(176)
+            size = len(head)
+            while True:
+                chunk = handle.read(1 << 22)
+                if not chunk:
+                    break
+                size += len(chunk)
+    except (OSError, EOFError, zlib.error) as error:
+        raise cannot_read(path, f"the gzip stream is truncated or corrupt ({error})") from None
+    if len(head) < 176:
+        raise cannot_read(path, "the NIfTI header is truncated")
+    layouts = {348: ("f", 108), 540: ("q", 168)}  # sizeof_hdr: type and byte of vox_offset
+    for endian in "<>":
+        sizeof_hdr = struct.unpack_from(endian + "i", head)[0]
+        if sizeof_hdr in layouts:
+            kind, at = layouts[sizeof_hdr]
+            offset = max(int(struct.unpack_from(endian + kind, head, at)[0]), sizeof_hdr)
+            break
+    else:
+        raise cannot_read(path, "not a NIfTI-1 or NIfTI-2 header")
+    if size - offset < voxel_bytes:
+        found = max(size - offset, 0)
+        raise cannot_read(path, f"it is truncated: {voxel_bytes} bytes of voxel data expected, {found} found")
+
+
+def _read_vti(path: Path, name: str, n_bins: Optional[int]) -> Volume:
+    from vtkmodules.util.numpy_support import get_numpy_array_type, vtk_to_numpy
+    from vtkmodules.vtkCommonDataModel import vtkDataObject, vtkDataSetAttributes
+    from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline
+    from vtkmodules.vtkIOXML import vtkXMLImageDataReader
+
+    reader = vtkXMLImageDataReader()
+    if not reader.CanReadFile(str(path)):
+        raise cannot_read(path, "not a VTK XML image data (.vti) file")
+    reader.SetFileName(str(path))
+    with captured_native_output() as texts:
+        reader.UpdateInformation()
+    info = reader.GetOutputInformation(0)
+    extent = info.Get(vtkStreamingDemandDrivenPipeline.WHOLE_EXTENT())
+    scalars = vtkDataObject.GetActiveFieldInformation(
+        info, vtkDataObject.FIELD_ASSOCIATION_POINTS, vtkDataSetAttributes.SCALARS
+    )
+    if reader.GetErrorCode() or extent is None or scalars is None:
+        raise cannot_read(path, first_message(texts) or "the file holds no point scalars")
+    dimensions = tuple(int(extent[2 * a + 1] - extent[2 * a] + 1) for a in range(3))
+    dtype = np.dtype(get_numpy_array_type(scalars.Get(vtkDataObject.FIELD_ARRAY_TYPE())))
+    # VTK XML files may be LZMA-compressed (no useful bound on the expansion): only the memory bound applies.
+    _check_size(path, dimensions, scalars.Get(vtkDataObject.FIELD_NUMBER_OF_COMPONENTS()), dtype, n_bins)
+    with captured_native_output() as texts:
+        reader.Update()
+    image = reader.GetOutput()
+    array = image.GetPointData().GetScalars() if image is not None else None
+    i, j, k = dimensions
+    if reader.GetErrorCode() or array is None or array.GetNumberOfValues() != i * j * k or first_message(texts):
+        raise cannot_read(path, f"the voxel data are truncated or corrupt ({first_message(texts) or 'no scalars'})")
+    matrix = image.GetDirectionMatrix()
+    rotation = np.array([[matrix.GetElement(r, c) for c in range(3)] for r in range(3)])
+    ijk_to_ras = np.eye(4)
+    ijk_to_ras[:3, :3] = rotation * np.asarray(image.GetSpacing())[np.newaxis, :]
+    ijk_to_ras[:3, 3] = image.GetOrigin()
+    return Volume.from_ijk_to_ras(vtk_to_numpy(array).reshape(k, j, i), ijk_to_ras, name)
+
+
+def _read_npy(path: Path, name: str, n_bins: Optional[int]) -> Volume:
+    try:
+        with open(path, "rb") as handle:
+            version = np.lib.format.read_magic(handle)
+            shape, fortran, dtype = (
+                np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            )(handle)
+            offset = handle.tell()
+    except (ValueError, OSError, EOFError) as error:
+        raise cannot_read(path, f"not a valid .npy file ({' '.join(str(error).split())})") from None
+    if dtype.hasobject or dtype.kind not in "biuf":
+        raise cannot_read(path, f"the array has dtype {dtype}; a numeric array is needed (pickles are not loaded)")
+    if len(shape) == 4 and shape[-1] in (2, 3, 4):
+        _check_size(path, shape[2::-1], int(shape[-1]), dtype, n_bins)
+    if len(shape) != 3:
+        raise cannot_read(path, f"the array has shape {shape}; a 3-D (k, j, i) array is needed")
+    expected = int(np.prod(shape, dtype=np.float64)) * dtype.itemsize
+    available = path.stat().st_size - offset
+    if available < expected:
+        raise cannot_read(path, f"it is truncated: {expected} bytes of voxel data expected, {available} found")
+    _check_size(path, shape[::-1], 1, dtype, n_bins)
+    values = np.fromfile(path, dtype=dtype, count=int(np.prod(shape)), offset=offset)
+    values = values.reshape(shape, order="F" if fortran else "C")
+    if dtype.kind == "b":
+        values = values.astype(np.uint8)
+    return Volume(np.ascontiguousarray(values), name=name)
+
+
+def _read_inv3(path: Path, name: str, n_bins: Optional[int]) -> Volume:
+    errors = (tarfile.TarError, OSError, EOFError, zlib.error)
+    try:
+        archive = tarfile.open(path, "r:gz")
+    except errors as error:
+        raise cannot_read(path, f"not an InVesalius project (gzip tar expected: {error})") from None
+    with archive:
+        try:
+            members = {m.name: m for m in archive.getmembers() if m.isfile()}
+            main_name = next((n for n in members if n.rsplit("/", 1)[-1] == "main.plist"), None)
+            if main_name is None:
+                raise cannot_read(path, "no main.plist in the InVesalius project")
+            main = plistlib.loads(_extract(archive, members[main_name]))
+        except errors as error:
+            raise cannot_read(path, f"the archive is corrupt or truncated ({error})") from None
+        except plistlib.InvalidFileException:
+            raise cannot_read(path, "its main.plist is not a property list") from None
+        try:
+            matrix = main["matrix"]
+            shape = tuple(int(n) for n in matrix["shape"])
+            dtype = np.dtype(str(matrix.get("dtype", "int16"))).newbyteorder("<")
+            spacing = tuple(float(s) for s in main["spacing"])
+            data_name = str(matrix.get("filename", "matrix.dat"))
+        except (KeyError, TypeError, ValueError):
+            raise cannot_read(path, "its main.plist lacks a valid matrix shape, dtype or spacing") from None
+        if len(shape) != 3 or len(spacing) != 3:
+            raise cannot_read(path, f"the project matrix has shape {shape}; a 3-D (z, y, x) matrix is needed")
+        folder = main_name.rsplit("/", 1)[0] + "/" if "/" in main_name else ""
+        member = members.get(folder + data_name)
+        if member is None:
+            raise cannot_read(path, f"the project has no {data_name}")
+        expected = int(np.prod(shape, dtype=np.float64)) * dtype.itemsize
+        if member.size != expected:
+            raise cannot_read(
+                path, f"{data_name} holds {member.size} bytes; shape {shape} of {dtype.name} needs {expected}"
+            )
+        _check_size(path, shape[::-1], 1, dtype, n_bins)
+        try:
+            raw = _extract(archive, member)
+        except errors as error:
+            raise cannot_read(path, f"the archive is corrupt or truncated ({error})") from None
+    values = np.frombuffer(raw, dtype=dtype).reshape(shape).astype(dtype.newbyteorder("="))
+    directions = _INV3_AXIAL_DIRECTIONS if main.get("orientation", 1) in (1, "AXIAL") else np.eye(3)
+    return Volume(values, spacing, (0.0, 0.0, 0.0), directions, name)
+
+
+def _extract(archive: tarfile.TarFile, member: tarfile.TarInfo) -> bytes:
+    handle = archive.extractfile(member)
+    if handle is None:
+        raise OSError(f"cannot extract {member.name}")
+    with handle:
+        data = handle.read()
+    if len(data) != member.size:
+        raise EOFError(f"{member.name} is truncated")
+    return data
