@@ -248,7 +248,7 @@ def _write(volume_node, design: TransferFunctionDesign, volume_rendering_logic, 
         display_node = _add_display_node(volume_node, volume_rendering_logic, property_node)
         first = True
     if first:
-        configure_volume_property(property_node.GetVolumeProperty(), design.unit_distance)
+        configure_volume_property(property_node.GetVolumeProperty(), design.unit_distance, design.gradient_ramp_top)
     _store(text_node, design)
     update_property_node(property_node, design)
     low, high = volume_node.GetImageData().GetScalarRange()
@@ -468,7 +468,7 @@ def add_preset(design: TransferFunctionDesign, volume_rendering_logic, name: str
     preset = presets.CreateNodeByClass("vtkMRMLVolumePropertyNode")
     preset.UnRegister(None)  # created with a reference for the caller: the Python object now owns it
     preset.SetName(name.strip())
-    configure_volume_property(preset.GetVolumeProperty(), design.unit_distance)
+    configure_volume_property(preset.GetVolumeProperty(), design.unit_distance, design.gradient_ramp_top)
     design.update_volume_property(preset.GetVolumeProperty())
     preset.SetEffectiveRange(*design.value_range)
     added = volume_rendering_logic.AddPreset(preset, _icon_image(transfer_function_icon(design)))

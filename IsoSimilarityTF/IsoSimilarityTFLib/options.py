@@ -14,7 +14,7 @@ from typing import Any, Optional
 from .classes import BACKGROUND_RULES
 from .clustering import PREFERENCES, UNCONVERGED_RULES
 from .errors import OptionError
-from .look import COLOR_SCHEMES, KINDS
+from .look import COLOR_SCHEMES, GRADIENT_OPACITY, KINDS
 from .quantize import MAX_BINS
 from .similarity import CROSSINGS, NORMALIZATIONS
 
@@ -130,6 +130,8 @@ OPTIONS: dict[str, Option] = {
                "or a distinct qualitative palette", "--colors", choices=COLOR_SCHEMES),
         Option("modality", None, "choice", "kind of volume, which sets the opacity curve", "--modality",
                choices=KINDS, none_means="detected from the data type and value range"),
+        Option("gradient_opacity", "off", "choice", "gradient opacity: off (constant, as Slicer's presets) or auto "
+               "(homogeneous insides fade, boundaries stay)", "--gradient-opacity", choices=GRADIENT_OPACITY),
     )
 }  # fmt: skip
 
