@@ -114,6 +114,7 @@ class IsoSimilarityTFParameterNode:
     colors - tissue colours: "ramp" (intensity-ordered, as Slicer's presets) or "distinct" (a qualitative palette).
     modality - kind of volume, which chooses the opacity curve: "auto" (detected from the data type and value
         range; the engine's None), "ct", "mr" or "8bit".
+    gradientOpacity - "off" (constant, as Slicer's presets) or "auto" (homogeneous insides fade, boundaries stay).
     """
 
     inputVolume: vtkMRMLScalarVolumeNode
@@ -132,6 +133,7 @@ class IsoSimilarityTFParameterNode:
     tissues: Annotated[int, _withinRange("tissues", minimum=AUTO_DETAIL)] = AUTO_DETAIL  # AUTO_DETAIL: "auto"
     colors: Annotated[str, _choice("colors")] = _default("colors")
     modality: Annotated[str, _choice("modality", "auto")] = "auto"  # "auto": detected (None in the engine)
+    gradientOpacity: Annotated[str, _choice("gradient_opacity")] = _default("gradient_opacity")
 
 
 #
@@ -196,6 +198,10 @@ def choiceLabels() -> dict:
             "ct": _("CT (Hounsfield units)"),
             "mr": _("MRI or other scalars"),
             "8bit": _("8-bit data"),
+        },
+        "gradientOpacity": {
+            "off": _("Off (as Slicer's presets)"),
+            "auto": _("Automatic (fade homogeneous insides)"),
         },
     }
 
@@ -348,6 +354,7 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             "unconverged": self.ui.unconvergedComboBox,
             "colors": self.ui.colorsComboBox,
             "modality": self.ui.modalityComboBox,
+            "gradientOpacity": self.ui.gradientOpacityComboBox,
         }
         for parameter, labels in choiceLabels().items():
             comboBox = comboBoxes[parameter]
@@ -970,6 +977,7 @@ class IsoSimilarityTFLogic(ScriptedLoadableModuleLogic, DesignSession):
             "tissues": int(parameterNode.tissues),
             "colors": parameterNode.colors,
             "modality": None if parameterNode.modality == "auto" else parameterNode.modality,
+            "gradient_opacity": parameterNode.gradientOpacity,
         }
 
     @staticmethod

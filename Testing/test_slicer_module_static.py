@@ -51,6 +51,7 @@ ENGINE_OPTIONS = {
     "tissues": "tissues",
     "colors": "colors",
     "modality": "modality",
+    "gradientOpacity": "gradient_opacity",
 }
 # Fields whose default stands for the engine option's default in the field's own type: levels 0 is None (all levels),
 # tissues AUTO_DETAIL (0) is "auto", modality "auto" is None (detected).
