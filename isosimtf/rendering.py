@@ -44,6 +44,7 @@ __all__ = [
     "frame_content",
     "lookup_table_fallbacks",
     "lookup_table_width",
+    "prepare_offscreen_environment",
     "render_volume",
     "slicer_core_available",
     "write_png",
@@ -115,7 +116,7 @@ def slicer_core_available() -> bool:
         return False
 
 
-def _prepare_offscreen_environment() -> None:
+def prepare_offscreen_environment() -> None:
     """Select VTK's EGL render window when there is no X display, before VTK's rendering classes are loaded."""
     if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
         os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
@@ -123,7 +124,7 @@ def _prepare_offscreen_environment() -> None:
 
 def _import_slicer() -> Any:
     """Import and return the ``slicer`` package of ``slicer-core``; raise RuntimeError with advice when missing."""
-    _prepare_offscreen_environment()
+    prepare_offscreen_environment()
     try:
         import slicer
     except ImportError as exc:  # pragma: no cover - depends on the environment

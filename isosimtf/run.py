@@ -23,7 +23,8 @@ from .outputs import (
     write_classes_json,
     write_data_files,
 )
-from .rendering import BACKDROPS, RAY_CASTING, VIEW_DIRECTIONS, slicer_core_available
+from .preload import CLUSTERING_MODULE, RENDERING_MODULE, BackgroundImports
+from .rendering import BACKDROPS, RAY_CASTING, VIEW_DIRECTIONS, prepare_offscreen_environment, slicer_core_available
 
 #: The command's stages, in order, as printed and as keys of ``timings_s`` in classes.json.
 STAGES = ("read", *DESIGN_STAGES, "write", "render")
@@ -71,8 +72,8 @@ def run(
 
     Raises:
         UsageError, VolumeReadError, ValueError: bad output path, input or option (a usage or input error).
-        ClusteringError: affinity propagation failed. OutputError: a file cannot be written. RenderError: rendering
-        failed (the data files are written by then).
+        DependencyError: scikit-learn cannot be imported. ClusteringError: affinity propagation failed.
+        OutputError: a file cannot be written. RenderError: rendering failed (the data files are written by then).
     """
     if view not in VIEW_DIRECTIONS:
         raise UsageError(f"view must be one of {', '.join(VIEW_DIRECTIONS)}; got {view!r}")
@@ -103,6 +104,9 @@ def run(
     previous = previous_outputs(path)
 
     started = time.perf_counter()
+    if render:
+        prepare_offscreen_environment()  # before the background thread loads VTK's rendering classes
+    imports = BackgroundImports([CLUSTERING_MODULE, *([RENDERING_MODULE] if render else [])])
     progress.stage("read", str(source))
     n_bins = options.get("n_bins", DEFAULT_OPTIONS["n_bins"])
     volume = load_input(source, phantom_size=phantom_size, seed=seed, n_bins=n_bins)
@@ -111,8 +115,12 @@ def run(
     for message in _input_warnings(info, n_bins):
         warning(message)
 
-    design = design_transfer_function(volume.values, volume.spacing, progress=progress.design_callback, **options)
+    waited: list[float] = []
+    design = design_transfer_function(
+        volume.values, volume.spacing, progress=_after_import(imports, progress.design_callback, waited), **options
+    )
     timings.update(design.timings_s)
+    timings["clustering"] += sum(waited)  # the stage's time includes waiting for scikit-learn's import
     result = RunResult(design, volume, info, path, timings_s=timings, warnings=warnings)
     for message in _design_warnings(result):
         warning(message)
@@ -147,6 +155,25 @@ def run(
         timings["total"] = time.perf_counter() - started
         write_classes_json(result)
     return result
+
+
+def _after_import(
+    imports: BackgroundImports, callback: Callable[[str, float, str], None], waited: list[float]
+) -> Callable[[str, float, str], None]:
+    """The design's progress callback, which also waits for scikit-learn's import when the clustering stage starts.
+
+    The seconds waited are appended to ``waited``. A failed import raises :class:`DependencyError` from the callback,
+    which ends the design there (raising from the callback is how a design is cancelled).
+    """
+
+    def progress(stage: str, fraction: float, message: str) -> None:
+        callback(stage, fraction, message)
+        if stage == "clustering" and fraction == 0.0:
+            start = time.perf_counter()
+            imports.wait(CLUSTERING_MODULE)
+            waited.append(time.perf_counter() - start)
+
+    return progress
 
 
 def _input_warnings(info: dict, n_bins: int) -> list[str]:
