@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import os
 import subprocess
 import sys
@@ -179,11 +180,11 @@ def test_pictures_are_readable_and_not_blank(rendered: Path) -> None:
     foreground = np.count_nonzero(picture.max(axis=2) > 20)
     assert 0.05 * picture.shape[0] * picture.shape[1] < foreground < 0.9 * picture.shape[0] * picture.shape[1]
     grid = read_png(rendered / "classes.png")
-    shown = [c for c in _load(rendered)["classes"] if c["visible"]]
+    shown = [t for t in _load(rendered)["tissues"] if t["visible"] and not t["background"]]
     tile = RENDER_SIZE // 2
-    assert grid.shape[1] >= 2 * tile and grid.shape[0] >= tile
     columns = (grid.shape[1] - figures.GRID_GAP) // (tile + figures.GRID_GAP)
-    assert columns * ((len(shown) + columns - 1) // columns) >= len(shown)
+    assert columns == math.ceil(math.sqrt(len(shown)))  # a tile a tissue
+    assert grid.shape[0] > math.ceil(len(shown) / columns) * tile
     assert np.count_nonzero(grid.max(axis=2) > 200) > 50  # label text
 
 

@@ -1,10 +1,12 @@
-"""The run's slow imports, done in a background thread while the volume is read and its similarity measured.
+"""The run's slow import, done in a background thread while the volume is read and its similarity measured.
 
-Importing scikit-learn takes about a second (most of it scipy.stats, which scikit-learn imports) and slicer-core
-about as long, yet affinity propagation needs scikit-learn only after the similarity, and rendering needs slicer-core
-only after the design. Reading the volume (zlib), quantizing and the similarity (numpy) release the GIL, so the imports
-run beside them on another core instead of after them. Only :func:`isosimtf.run.run` starts them, after the
-arguments were parsed: ``--help`` and usage errors never pay for them.
+Importing scikit-learn takes about a second (most of it scipy.stats, which scikit-learn imports), yet affinity
+propagation needs it only after the similarity. Reading the volume (zlib in 4 MiB calls), quantizing and the similarity
+(numpy) release the GIL, so the import runs beside them on another core instead of after them. Only
+:func:`isosimtf.run.run` starts it, after the arguments were parsed: ``--help`` and usage errors never pay for it.
+
+slicer-core (another second) is not imported so: the stages that would run beside it (classes, tissues, writing) hold
+the GIL, and sharing it made the tissue stage wait for the whole import (measured: 0.25 s became 2 s), a net loss.
 """
 
 import importlib
@@ -15,10 +17,8 @@ from IsoSimilarityTFLib.errors import DependencyError
 
 #: What ``cluster_isovalues`` imports for affinity propagation.
 CLUSTERING_MODULE = "sklearn.cluster"
-#: What headless rendering imports (``rendering.HeadlessSlicer``).
-RENDERING_MODULE = "slicer"
 #: Top-level module -> (the distribution to install, what it is needed for), for the error message.
-_PACKAGES = {"sklearn": ("scikit-learn", "affinity propagation"), "slicer": ("slicer-core", "rendering")}
+_PACKAGES = {"sklearn": ("scikit-learn", "affinity propagation")}
 
 
 class BackgroundImports:

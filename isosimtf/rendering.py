@@ -44,7 +44,6 @@ __all__ = [
     "frame_content",
     "lookup_table_fallbacks",
     "lookup_table_width",
-    "prepare_offscreen_environment",
     "render_volume",
     "slicer_core_available",
     "write_png",
@@ -116,7 +115,7 @@ def slicer_core_available() -> bool:
         return False
 
 
-def prepare_offscreen_environment() -> None:
+def _prepare_offscreen_environment() -> None:
     """Select VTK's EGL render window when there is no X display, before VTK's rendering classes are loaded."""
     if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
         os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
@@ -124,7 +123,7 @@ def prepare_offscreen_environment() -> None:
 
 def _import_slicer() -> Any:
     """Import and return the ``slicer`` package of ``slicer-core``; raise RuntimeError with advice when missing."""
-    prepare_offscreen_environment()
+    _prepare_offscreen_environment()
     try:
         import slicer
     except ImportError as exc:  # pragma: no cover - depends on the environment
@@ -640,10 +639,21 @@ class HeadlessSlicer:
         """
         self._check_open()
         picture = self._render(view, reset_camera)
-        if frame and self.camera_node is not None:
-            if frame_content(self.camera_node.GetCamera(), picture, backdrop=self.backdrop()):
-                picture = self._render(None, False)
+        if frame and self._frame(picture):
+            picture = self._render(None, False)
         return picture
+
+    def frame_camera(self, view: str | None = "anterior") -> None:
+        """Point the camera (``view``), fit it to the volume and narrow it onto what the view shows, without rendering
+        the framed picture: done in a small window, this frames the pictures rendered next (larger) at little cost.
+        """
+        self._check_open()
+        self._frame(self._render(view, True))
+
+    def _frame(self, picture: np.ndarray) -> bool:
+        """Narrow the camera onto what ``picture`` shows (:func:`frame_content`); whether the camera changed."""
+        camera_node = self.camera_node
+        return camera_node is not None and frame_content(camera_node.GetCamera(), picture, backdrop=self.backdrop())
 
     def backdrop(self) -> np.ndarray:
         """The picture of the empty view (its backdrop): ``(height, width, 3)`` uint8, rendered with every volume

@@ -23,8 +23,8 @@ from .outputs import (
     write_classes_json,
     write_data_files,
 )
-from .preload import CLUSTERING_MODULE, RENDERING_MODULE, BackgroundImports
-from .rendering import BACKDROPS, RAY_CASTING, VIEW_DIRECTIONS, prepare_offscreen_environment, slicer_core_available
+from .preload import CLUSTERING_MODULE, BackgroundImports
+from .rendering import BACKDROPS, RAY_CASTING, VIEW_DIRECTIONS, slicer_core_available
 
 #: The command's stages, in order, as printed and as keys of ``timings_s`` in classes.json.
 STAGES = ("read", *DESIGN_STAGES, "write", "render")
@@ -104,9 +104,7 @@ def run(
     previous = previous_outputs(path)
 
     started = time.perf_counter()
-    if render:
-        prepare_offscreen_environment()  # before the background thread loads VTK's rendering classes
-    imports = BackgroundImports([CLUSTERING_MODULE, *([RENDERING_MODULE] if render else [])])
+    imports = BackgroundImports([CLUSTERING_MODULE])
     progress.stage("read", str(source))
     n_bins = options.get("n_bins", DEFAULT_OPTIONS["n_bins"])
     volume = load_input(source, phantom_size=phantom_size, seed=seed, n_bins=n_bins)
