@@ -1,6 +1,9 @@
 """What the ``isosimtf`` command does, without the argument parsing: read, design, write the output folder, render."""
 
+import gc
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Callable, Optional
 
 from IsoSimilarityTFLib.design import STAGES as DESIGN_STAGES
@@ -35,6 +38,23 @@ SLOW_CLUSTERING_BINS = 1024
 LABEL_MAP_VALUES = 16
 
 
+@contextmanager
+def _cyclic_gc_paused() -> Iterator[None]:
+    """Pause Python's cyclic garbage collector (reference counting still frees everything else).
+
+    A run makes almost no cyclic garbage, but importing scipy, scikit-learn and VTK creates about a million objects,
+    and the collector's full passes over them cost 0.2-0.3 s of a rendered run on the head CT.
+    """
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
+
+
+@_cyclic_gc_paused()
 def run(
     source: PathLike,
     outdir: PathLike,
