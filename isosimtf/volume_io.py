@@ -56,6 +56,11 @@ _REAL_DATASETS: dict[str, tuple[str, ...]] = {
         "/usr/share/mricron-data/templates/ch2.nii.gz",
         "/usr/lib/mricron/templates/ch2.nii.gz",
     ),
+    "brain-stripped": (
+        "/usr/share/mricron/templates/ch2bet.nii.gz",
+        "/usr/share/mricron-data/templates/ch2bet.nii.gz",
+        "/usr/lib/mricron/templates/ch2bet.nii.gz",
+    ),
 }
 
 #: InVesalius stores axial projects with i towards the patient's left, j towards anterior (it flips DICOM rows)
@@ -152,8 +157,9 @@ def real_dataset_path(name: str) -> Optional[Path]:
     """Return the installed path of a real test volume, or None when its Debian package is not installed.
 
     Args:
-        name: ``"head-ct"`` (InVesalius ``Cranium.inv3``, package ``invesalius-examples``) or ``"brain-mri"``
-            (Colin27 ``ch2.nii.gz``, package ``mricron-data``).
+        name: ``"head-ct"`` (InVesalius ``Cranium.inv3``, package ``invesalius-examples``), ``"brain-mri"``
+            (Colin27 ``ch2.nii.gz``, package ``mricron-data``) or ``"brain-stripped"`` (its skull-stripped
+            ``ch2bet.nii.gz``, same package).
 
     Raises:
         KeyError: unknown name.
