@@ -29,7 +29,7 @@ from slicer.ScriptedLoadableModule import (
 from slicer.util import VTKObservationMixin
 
 from IsoSimilarityTFLib.options import OPTIONS
-from IsoSimilarityTFLib.session import DesignSession
+from IsoSimilarityTFLib.session import AUTO_DETAIL, CLASS, TISSUE, Cancelled, DesignSession
 
 #
 # IsoSimilarityTF
@@ -52,8 +52,9 @@ class IsoSimilarityTF(ScriptedLoadableModule):
             """
 Designs a multi-class transfer function for volume rendering automatically, from the volume alone.
 Isovalues whose isosurfaces cross the same cells of a hierarchical (octree) grid are similar; affinity propagation
-groups similar isovalues into classes without being told how many. Each class gets a colour and an opacity that you
-can change, hide, or show alone, without computing anything again.
+groups similar isovalues into classes without being told how many, and the classes are grouped into tissues (the
+Detail slider regroups them at once). Each tissue and each class gets a colour and an opacity that you can change,
+hide, or show alone, without computing anything again.
 See the <a href="https://github.com/isosimilaritytf/SlicerIsoSimilarityTF">project page</a> for documentation.
 """
         )
@@ -107,6 +108,13 @@ class IsoSimilarityTFParameterNode:
     maxClasses - how many classes (largest first, background excluded) are shown at first.
     background - which class is hidden as background: "largest", "lowest" or "none".
     unconverged - what to do when affinity propagation does not converge: "raise-damping", "error" or "keep".
+    tissues - the Detail slider: how the classes are grouped into tissues. 0 (the default) is the automatic count
+        (the engine's tissues="auto"); n >= 1 is n tissues; a count at or above the design's number of classes is one
+        tissue per class (tissues="all", the thesis). Moving it regroups the shown design at once; Apply uses it too.
+    colors - tissue colours: "ramp" (intensity-ordered, as Slicer's presets) or "distinct" (a qualitative palette).
+    modality - kind of volume, which chooses the opacity curve: "auto" (detected from the data type and value
+        range; the engine's None), "ct", "mr" or "8bit".
+    gradientOpacity - "off" (constant, as Slicer's presets) or "auto" (homogeneous insides fade, boundaries stay).
     """
 
     inputVolume: vtkMRMLScalarVolumeNode
@@ -122,17 +130,27 @@ class IsoSimilarityTFParameterNode:
     maxClasses: Annotated[int, _withinRange("max_classes")] = _default("max_classes")
     background: Annotated[str, _choice("background")] = _default("background")
     unconverged: Annotated[str, _choice("unconverged")] = _default("unconverged")
+    tissues: Annotated[int, _withinRange("tissues", minimum=AUTO_DETAIL)] = AUTO_DETAIL  # AUTO_DETAIL: "auto"
+    colors: Annotated[str, _choice("colors")] = _default("colors")
+    modality: Annotated[str, _choice("modality", "auto")] = "auto"  # "auto": detected (None in the engine)
+    gradientOpacity: Annotated[str, _choice("gradient_opacity")] = _default("gradient_opacity")
 
 
 #
 # IsoSimilarityTFWidget
 #
 
-# Columns of the classes table (headers are set in the .ui file).
-COLUMN_CLASS, COLUMN_COLOR, COLUMN_OPACITY, COLUMN_VISIBLE, COLUMN_SOLO, COLUMN_VOXELS, COLUMN_RANGE = range(7)
+# Columns of the tissue tree (headers are set in the .ui file).
+COLUMN_NAME, COLUMN_COLOR, COLUMN_OPACITY, COLUMN_VISIBLE, COLUMN_SOLO, COLUMN_VOXELS, COLUMN_RANGE = range(7)
 
 # Share of the progress bar per stage of the engine (clustering gives no progress of its own).
-STAGE_PROGRESS = {"quantize": (0, 5), "similarity": (5, 60), "clustering": (60, 97), "classes": (97, 100)}
+STAGE_PROGRESS = {
+    "quantize": (0, 5),
+    "similarity": (5, 55),
+    "clustering": (55, 85),
+    "classes": (85, 90),
+    "tissues": (90, 100),
+}
 
 # How often the panel reads the progress of the design process, in milliseconds.
 POLL_INTERVAL_MS = 100
@@ -171,6 +189,20 @@ def choiceLabels() -> dict:
             "error": _("Stop with an error"),
             "keep": _("Keep the last grouping"),
         },
+        "colors": {
+            "ramp": _("Intensity ramp (as Slicer's presets)"),
+            "distinct": _("Distinct colours"),
+        },
+        "modality": {
+            "auto": _("Detect from the data"),
+            "ct": _("CT (Hounsfield units)"),
+            "mr": _("MRI or other scalars"),
+            "8bit": _("8-bit data"),
+        },
+        "gradientOpacity": {
+            "off": _("Off (as Slicer's presets)"),
+            "auto": _("Automatic (fade homogeneous insides)"),
+        },
     }
 
 
@@ -189,14 +221,20 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         # The design being computed: a child process (IsoSimilarityTFLib.worker) and the volume it is for.
         self._job = None
         self._jobVolume = None
+        # A design being computed in this process (small ones), and whether Cancel was pressed meanwhile.
+        self._inProcess = False
+        self._cancelRequested = False
         self._pollTimer = None
         # The volume whose design the classes table shows (the table is rebuilt when the input changes).
         self._shownVolume = None
-        self._rowWidgets = []
+        # The tree's editing widgets by (level, id) of their row.
+        self._rowWidgets = {}
+        # The Detail (parameter node "tissues") the shown design was last grouped with.
+        self._detailShown = None
 
     @property
     def _running(self) -> bool:
-        return self._job is not None
+        return self._job is not None or self._inProcess
 
     def setup(self) -> None:
         ScriptedLoadableModuleWidget.setup(self)
@@ -229,7 +267,7 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self.ui.progressBar.hide()
         self.ui.cancelButton.hide()
         self.ui.statusLabel.text = ""
-        header = self.ui.classesTableWidget.horizontalHeader()
+        header = self.ui.tissuesTreeWidget.header()
         header.setSectionResizeMode(qt.QHeaderView.ResizeToContents)
         header.setStretchLastSection(True)
         self._showDesign(None)
@@ -314,6 +352,9 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             "preference": self.ui.preferenceComboBox,
             "background": self.ui.backgroundComboBox,
             "unconverged": self.ui.unconvergedComboBox,
+            "colors": self.ui.colorsComboBox,
+            "modality": self.ui.modalityComboBox,
+            "gradientOpacity": self.ui.gradientOpacityComboBox,
         }
         for parameter, labels in choiceLabels().items():
             comboBox = comboBoxes[parameter]
@@ -345,6 +386,8 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
                     "The 3D view shows another transfer function than this design (changed in the Volume Rendering "
                     "module). Editing a class shows the design again, after asking."
                 )
+        if self._parameterNode is not None:
+            self._onDetailChanged()
 
     # Active volume ---------------------------------------------------------------------------------------------------
     def _observeSelectionNode(self) -> None:
@@ -377,7 +420,9 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         activeVolume = self._activeVolume()
         self._followActiveVolume = node is None or activeVolume is None or node is activeVolume
 
-    # Apply: the design runs in a child process, polled by a timer, so Slicer stays responsive and Cancel is at once.
+    # Apply. A design expected to take less than about a second runs here, on the main thread, repainting and
+    # checking Cancel at each progress report; a longer one runs in a child process, polled by a timer, so Slicer stays
+    # responsive and Cancel is at once (the process costs about 3 s to start: see IsoSimilarityTFLib.session).
     def onApplyButton(self) -> None:
         if self._running or not self._parameterNode or not self._parameterNode.inputVolume:
             return
@@ -386,19 +431,61 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         if not self._ensureScikitLearn():
             self.ui.statusLabel.text = _("scikit-learn is needed to group the isovalues into classes.")
             return
-        with slicer.util.tryWithErrorDisplay(_("Failed to compute the transfer function."), waitCursor=True):
-            options = self.logic.designOptions(self._parameterNode)
-            from IsoSimilarityTFLib.session import fit_levels
+        options = self.logic.designOptions(self._parameterNode)
+        from IsoSimilarityTFLib.session import fit_levels
 
-            dimensions = volume.GetImageData().GetDimensions() if volume.GetImageData() else (0, 0, 0)
-            available = fit_levels(tuple(reversed(dimensions)), options)[1]
-            if available is not None:
-                logging.info(f"IsoSimilarityTF: {volume.GetName()} has {available} octree levels; using all of them")
-            self.addLog(_("Designing a transfer function for {name}...").format(name=volume.GetName()))
+        dimensions = volume.GetImageData().GetDimensions() if volume.GetImageData() else (0, 0, 0)
+        available = fit_levels(tuple(reversed(dimensions)), options)[1]
+        if available is not None:
+            logging.info(f"IsoSimilarityTF: {volume.GetName()} has {available} octree levels; using all of them")
+        self.addLog(_("Designing a transfer function for {name}...").format(name=volume.GetName()))
+        if self.logic.runs_in_process(volume, options):
+            self._runInProcess(volume, options)
+            return
+        with slicer.util.tryWithErrorDisplay(_("Failed to compute the transfer function."), waitCursor=True):
             self._job = self.logic.start(volume, options)
             self._jobVolume = volume
             self._setRunning(True)
             self._pollTimer.start()
+
+    def _runInProcess(self, volume, options: dict) -> None:
+        self._inProcess = True
+        self._cancelRequested = False
+        self._setRunning(True)
+
+        def progress(stage: str, fraction: float, message: str) -> None:
+            self._showProgress(stage, fraction, message)
+            slicer.app.processEvents()  # repaint, and let Cancel be pressed
+            if self._cancelRequested or volume.GetScene() is None:
+                raise Cancelled()
+
+        try:
+            with slicer.util.tryWithErrorDisplay(_("Failed to compute the transfer function."), waitCursor=True):
+                if "sklearn.cluster" not in sys.modules:
+                    # Imported once per session (about a second, without repaint): said before, not mid-way.
+                    self.ui.progressBar.setFormat(_("Loading scikit-learn..."))
+                    slicer.app.processEvents()
+                    import sklearn.cluster  # noqa: F401
+                try:
+                    design = self.logic.run(volume, options, progress=progress)
+                except Cancelled:
+                    self.addLog(_("Cancelled."))
+                    return
+                self._showResult(volume, design)
+        finally:
+            self._inProcess = False
+            self._setRunning(False)
+
+    def _showProgress(self, stage: str, fraction: float, message: str) -> None:
+        low, high = STAGE_PROGRESS.get(stage, (0, 100))
+        self.ui.progressBar.value = round(low + (high - low) * min(max(fraction, 0.0), 1.0))
+        self.ui.progressBar.setFormat(f"{message} (%p%)")
+
+    def _showResult(self, volume, design) -> None:
+        self._shownVolume = volume
+        self._showDesign(design)
+        self.addLog(self.logic.summaryText(design))
+        logging.info(f"IsoSimilarityTF timings for {volume.GetName()}: {self.logic.timingsText(design)}")
 
     def _pollJob(self) -> None:
         job = self._job
@@ -406,10 +493,8 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             self._pollTimer.stop()
             return
         finished = not job.running
-        for stage, fraction, message in job.poll():
-            low, high = STAGE_PROGRESS.get(stage, (0, 100))
-            self.ui.progressBar.value = round(low + (high - low) * min(max(fraction, 0.0), 1.0))
-            self.ui.progressBar.setFormat(f"{message} (%p%)")
+        for report in job.poll():
+            self._showProgress(*report)
         if not finished:
             return
         self._pollTimer.stop()
@@ -420,21 +505,23 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
                 if volume.GetScene() is None:
                     job.close()
                     raise RuntimeError(_("The input volume was removed from the scene."))
-                design = self.logic.finish(volume, job)
-                self._shownVolume = volume
-                self._showDesign(design)
-                self.addLog(self.logic.summaryText(design))
-                logging.info(f"IsoSimilarityTF timings for {volume.GetName()}: {self.logic.timingsText(design)}")
+                self._showResult(volume, self.logic.finish(volume, job))
         finally:
             self._setRunning(False)
 
     def onCancelButton(self) -> None:
+        if self._inProcess:  # the design stops at its next progress report, which then says so
+            self._cancelRequested = True
+            self.ui.cancelButton.enabled = False
+            return
         self._stopJob()
         self._setRunning(False)
         self.addLog(_("Cancelled."))
 
     def _stopJob(self) -> None:
-        """Kill the design process, if any, and forget it (takes effect at once, at any stage)."""
+        """Kill the design process, if any, and forget it (takes effect at once, at any stage); a design in this
+        process stops at its next progress report."""
+        self._cancelRequested = True
         if self._pollTimer is not None:
             self._pollTimer.stop()
         if self._job is not None:
@@ -451,7 +538,7 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             self.ui.applyButton,
             self.ui.inputSelector,
             self.ui.advancedCollapsibleButton,
-            self.ui.classesCollapsibleButton,
+            self.ui.tissuesCollapsibleButton,
         ):
             widget.enabled = not running
         if not running:
@@ -500,10 +587,11 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self.ui.statusLabel.text = text
         slicer.app.processEvents()
 
-    # Classes table ---------------------------------------------------------------------------------------------------
+    # Tissue tree ---------------------------------------------------------------------------------------------------
     def _showDesign(self, design) -> None:
-        """Show a design (or nothing) in the classes table, the similarity picture and the timings label."""
-        self._fillClassesTable(design)
+        """Show a design (or nothing) in the tissue tree, the Detail slider, the similarity picture and the timings."""
+        self._showDetail(design)
+        self._fillTree(design)
         self._showSimilarityPicture(design)
         self.ui.timingsLabel.text = self.logic.timingsText(design) if design is not None else ""
         for button in (
@@ -514,96 +602,181 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             self.ui.savePresetButton,
         ):
             button.enabled = design is not None
+
+    def _showDetail(self, design) -> None:
+        """Set the Detail slider's range to the design's (automatic, 1 tissue ... one per class) and its value to the
+        design's grouping, which the parameter node then holds (so the slider regroups only when the user moves it)."""
+        slider = self.ui.detailSlider
+        slider.enabled = design is not None
+        slider.blockSignals(True)
         if design is None:
-            self.ui.classesCollapsibleButton.text = _("Classes")
+            # Any saved value fits: the slider must not clamp the parameter while no design is shown.
+            slider.setRange(AUTO_DETAIL, int(OPTIONS["tissues"].maximum))
         else:
-            self.ui.classesCollapsibleButton.text = _("Classes ({count})").format(count=len(design.classes))
+            slider.setRange(AUTO_DETAIL, self.logic.detail_range()[1])
+        slider.blockSignals(False)
+        if design is not None and self._parameterNode is not None:
+            self._detailShown = self.logic.detail()
+            self._parameterNode.tissues = self._detailShown
+        self._updateDetailLabel()
+
+    def _updateDetailLabel(self) -> None:
+        design = self.logic.design if self._shownVolume is not None else None
+        detail = self._parameterNode.tissues if self._parameterNode else AUTO_DETAIL
+        self.ui.detailValueLabel.text = self.detailText(detail, design)
 
     @staticmethod
-    def _centered(widget):
-        container = qt.QWidget()
-        layout = qt.QHBoxLayout(container)
-        layout.setContentsMargins(0, 0, 0, 0)
-        layout.setAlignment(qt.Qt.AlignCenter)
-        layout.addWidget(widget)
-        return container
-
-    def _fillClassesTable(self, design) -> None:
-        table = self.ui.classesTableWidget
-        table.clearContents()
-        table.setRowCount(0)  # deletes the rows' cell widgets
-        self._rowWidgets = []
-        table.setRowCount(0 if design is None else len(design.classes))
+    def detailText(detail: int, design) -> str:
+        """What a Detail setting means, for the label beside the slider."""
         if design is None:
+            if detail == AUTO_DETAIL:
+                return _("Automatic")
+            return _("1 tissue") if detail == 1 else _("{count} tissues").format(count=detail)
+        count = design.n_tissues
+        if detail == AUTO_DETAIL:
+            return _("Automatic: 1 tissue") if count == 1 else _("Automatic: {count} tissues").format(count=count)
+        if detail >= design.hierarchy.max_tissues:
+            return _("One per class: {count} (thesis)").format(count=count)
+        return _("1 tissue") if count == 1 else _("{count} tissues").format(count=count)
+
+    def _onDetailChanged(self) -> None:
+        """The parameter node's Detail changed (the slider, a script): regroup the shown design at once."""
+        design = self.logic.design
+        detail = self._parameterNode.tissues
+        if design is None or self._shownVolume is None or detail == self._detailShown:
+            self._updateDetailLabel()
             return
-        for row, isoClass in enumerate(design.classes):
-            self._rowWidgets.append(self._fillClassRow(table, row, isoClass))
-        self._syncClassRows()
+        self._detailShown = detail
+        if self._confirmOverwrite():
+            with slicer.util.tryWithErrorDisplay(_("Failed to regroup the classes.")):
+                self.logic.regroup(detail)
+        # The design's own setting: a count past its classes becomes its class count; if the user kept the other
+        # transfer function, the slider goes back to the design's grouping.
+        self._detailShown = self.logic.detail()
+        self._parameterNode.tissues = self._detailShown
+        self._fillTree(design)
+        self._updateDetailLabel()
 
-    def _fillClassRow(self, table, row: int, isoClass) -> dict:
-        """One row of the table: a class's name, its look (editable) and its extent. Returns the editing widgets."""
-        label = str(isoClass.id + 1)
-        if isoClass.background:
-            label = _("{id} (background)").format(id=label)
-        classItem = qt.QTableWidgetItem(label)
-        classItem.setToolTip(
-            _("Class {id}: rank {rank} by voxel count; exemplar isovalue bin {exemplar}").format(
-                id=isoClass.id + 1, rank=isoClass.rank, exemplar=isoClass.exemplar_bin
-            )
+    def _fillTree(self, design) -> None:
+        tree = self.ui.tissuesTreeWidget
+        tree.clear()  # deletes the items and their widgets
+        self._rowWidgets = {}
+        if design is None:
+            self.ui.tissuesCollapsibleButton.text = _("Tissues")
+            return
+        for row in self.logic.rows():
+            item = self._addRow(tree, None, row)
+            for child in row.children:
+                self._addRow(tree, item, child)
+        self.ui.tissuesCollapsibleButton.text = _("Tissues ({tissues} tissues, {classes} classes)").format(
+            tissues=design.n_tissues, classes=len(design.classes)
         )
-        table.setItem(row, COLUMN_CLASS, classItem)
+        self._syncRows()
 
+    def rowName(self, row) -> str:
+        """The name shown in the tree (numbers from 1, as in the segment names)."""
+        if row.level == TISSUE:
+            if row.background:
+                return _("Background")
+            if not row.children:  # one class: the tissue is that class
+                return _("Tissue {id} (class {classId})").format(id=row.id + 1, classId=row.classes[0] + 1)
+            return _("Tissue {id}").format(id=row.id + 1)
+        return _("Class {id}").format(id=row.id + 1)
+
+    def _addRow(self, tree, parentItem, row):
+        """One item of the tree: a tissue (top level) or a class (inside its tissue), with its editing widgets."""
+        item = qt.QTreeWidgetItem()
+        if parentItem is None:  # the tree, or the tissue's item, owns the item (and then the widgets set on it)
+            tree.addTopLevelItem(item)
+        else:
+            parentItem.addChild(item)
+        item.setText(COLUMN_NAME, self.rowName(row))
+        if row.level == TISSUE:
+            item.setToolTip(
+                COLUMN_NAME,
+                _("Classes {ids}; an edit here changes all of them").format(
+                    ids=", ".join(str(c + 1) for c in row.classes)
+                ),
+            )
+        else:
+            isoClass = self.logic.design.classes[row.id]
+            item.setToolTip(
+                COLUMN_NAME,
+                _("Class {id}: rank {rank} by voxel count; exemplar isovalue bin {exemplar}").format(
+                    id=row.id + 1, rank=isoClass.rank, exemplar=isoClass.exemplar_bin
+                ),
+            )
+        item.setText(COLUMN_VOXELS, f"{100.0 * row.fraction:.2f} %")
+        item.setTextAlignment(COLUMN_VOXELS, qt.Qt.AlignRight | qt.Qt.AlignVCenter)
+        item.setToolTip(COLUMN_VOXELS, _("{voxels} voxels").format(voxels=row.voxels))
+        ranges = "; ".join(f"{low:.6g} to {high:.6g}" for low, high in row.value_ranges)
+        item.setText(COLUMN_RANGE, ranges)
+        item.setToolTip(COLUMN_RANGE, _("Intensity range(s), in the volume's units: {ranges}").format(ranges=ranges))
+
+        tissue = row.level == TISSUE
         colorButton = ctk.ctkColorPickerButton()
         colorButton.displayColorName = False
-        colorButton.toolTip = _("Colour of the class")
-        colorButton.connect("colorChanged(QColor)", functools.partial(self.onClassColorChanged, isoClass.id))
-        table.setCellWidget(row, COLUMN_COLOR, colorButton)
+        colorButton.toolTip = _("Colour of the tissue (all its classes)") if tissue else _("Colour of the class")
+        colorButton.connect("colorChanged(QColor)", functools.partial(self.onRowColorChanged, row.level, row.id))
+        tree.setItemWidget(item, COLUMN_COLOR, colorButton)
 
         opacitySlider = qt.QSlider(qt.Qt.Horizontal)
         opacitySlider.setRange(0, 100)
         opacitySlider.setMinimumWidth(80)
-        opacitySlider.connect("valueChanged(int)", functools.partial(self.onClassOpacityChanged, isoClass.id))
-        table.setCellWidget(row, COLUMN_OPACITY, opacitySlider)
+        opacitySlider.connect("valueChanged(int)", functools.partial(self.onRowOpacityChanged, row.level, row.id))
+        tree.setItemWidget(item, COLUMN_OPACITY, opacitySlider)
 
         visibleCheckBox = qt.QCheckBox()
-        visibleCheckBox.toolTip = _("Show this class")
-        visibleCheckBox.connect("toggled(bool)", functools.partial(self.onClassVisibleToggled, isoClass.id))
-        table.setCellWidget(row, COLUMN_VISIBLE, self._centered(visibleCheckBox))
+        visibleCheckBox.toolTip = _("Show this tissue (all its classes)") if tissue else _("Show this class")
+        # stateChanged, not toggled: from partly shown (a tissue some of whose classes are hidden) to shown, the
+        # checked property stays true.
+        visibleCheckBox.connect("stateChanged(int)", functools.partial(self.onRowVisibleChanged, row.level, row.id))
+        tree.setItemWidget(item, COLUMN_VISIBLE, visibleCheckBox)
 
         soloCheckBox = qt.QCheckBox()
-        soloCheckBox.toolTip = _("Show this class alone")
-        soloCheckBox.connect("toggled(bool)", functools.partial(self.onClassSoloToggled, isoClass.id))
-        table.setCellWidget(row, COLUMN_SOLO, self._centered(soloCheckBox))
+        soloCheckBox.toolTip = _("Show this tissue alone") if tissue else _("Show this class alone")
+        soloCheckBox.connect("toggled(bool)", functools.partial(self.onRowSoloToggled, row.level, row.id))
+        tree.setItemWidget(item, COLUMN_SOLO, soloCheckBox)
 
-        voxelsItem = qt.QTableWidgetItem(f"{100.0 * isoClass.fraction:.2f} %")
-        voxelsItem.setTextAlignment(qt.Qt.AlignRight | qt.Qt.AlignVCenter)
-        voxelsItem.setToolTip(_("{voxels} voxels").format(voxels=isoClass.voxels))
-        table.setItem(row, COLUMN_VOXELS, voxelsItem)
+        self._rowWidgets[(row.level, row.id)] = {
+            "item": item,
+            "color": colorButton,
+            "opacity": opacitySlider,
+            "visible": visibleCheckBox,
+            "solo": soloCheckBox,
+        }
+        return item
 
-        ranges = "; ".join(f"{low:.6g} to {high:.6g}" for low, high in isoClass.value_ranges)
-        rangeItem = qt.QTableWidgetItem(ranges)
-        rangeItem.setToolTip(
-            _("Intensity range(s) of the class, in the volume's units: {ranges}").format(ranges=ranges)
-        )
-        table.setItem(row, COLUMN_RANGE, rangeItem)
-        return {"color": colorButton, "opacity": opacitySlider, "visible": visibleCheckBox, "solo": soloCheckBox}
-
-    def _syncClassRows(self) -> None:
-        """Set the table's widgets from the logic's design, without sending edits back."""
+    def _syncRows(self) -> None:
+        """Set the tree's widgets from the logic's design, without sending edits back."""
         design = self.logic.design
         if design is None:
             return
-        for isoClass, widgets in zip(design.classes, self._rowWidgets):
-            for widget in widgets.values():
+        soloMode = design.solo_class is not None or design.solo_tissue_id is not None
+        rows = self.logic.rows()
+        for row in [*rows, *(child for r in rows for child in r.children)]:
+            widgets = self._rowWidgets.get((row.level, row.id))
+            if widgets is None:
+                continue
+            editors = [widgets[key] for key in ("color", "opacity", "visible", "solo")]
+            for widget in editors:
                 widget.blockSignals(True)
-            widgets["color"].color = qt.QColor.fromRgbF(*isoClass.color)
-            widgets["opacity"].value = round(100 * isoClass.opacity)
-            widgets["opacity"].toolTip = _("Opacity: {percent} %").format(percent=round(100 * isoClass.opacity))
-            widgets["visible"].checked = isoClass.visible
-            widgets["visible"].enabled = design.solo_class is None
-            widgets["solo"].checked = design.solo_class == isoClass.id
-            for widget in widgets.values():
+            widgets["color"].color = qt.QColor.fromRgbF(*row.color)
+            widgets["opacity"].value = round(100 * row.opacity)
+            widgets["opacity"].toolTip = _("Opacity: {percent} % per mm").format(percent=round(100 * row.opacity))
+            visible = widgets["visible"]
+            visible.setTristate(row.visible is None)
+            visible.setCheckState(
+                qt.Qt.PartiallyChecked if row.visible is None else (qt.Qt.Checked if row.visible else qt.Qt.Unchecked)
+            )
+            visible.enabled = not soloMode
+            widgets["solo"].checked = row.solo
+            for widget in editors:
                 widget.blockSignals(False)
+            # What the 3D view does not show is greyed out.
+            brush = qt.QBrush(self.ui.tissuesTreeWidget.palette.color(qt.QPalette.Disabled, qt.QPalette.Text))
+            for column in (COLUMN_NAME, COLUMN_VOXELS, COLUMN_RANGE):
+                widgets["item"].setForeground(column, qt.QBrush() if row.shown else brush)
 
     def _confirmOverwrite(self) -> bool:
         """Before an edit: if the shown transfer function is no longer the design's, ask before replacing it."""
@@ -632,20 +805,21 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         if self._confirmOverwrite():
             with slicer.util.tryWithErrorDisplay(_("Failed to update the transfer function.")):
                 edit()
-        self._syncClassRows()
+        self._syncRows()
 
-    def onClassColorChanged(self, classId: int, color) -> None:
-        self._edit(lambda: self.logic.set_class_color(classId, (color.redF(), color.greenF(), color.blueF())))
+    def onRowColorChanged(self, level: str, itemId: int, color) -> None:
+        self._edit(lambda: self.logic.edit(level, itemId, color=(color.redF(), color.greenF(), color.blueF())))
         self._showSimilarityPicture(self.logic.design)
 
-    def onClassOpacityChanged(self, classId: int, value: int) -> None:
-        self._edit(lambda: self.logic.set_class_opacity(classId, value / 100.0))
+    def onRowOpacityChanged(self, level: str, itemId: int, value: int) -> None:
+        self._edit(lambda: self.logic.edit(level, itemId, opacity=value / 100.0))
 
-    def onClassVisibleToggled(self, classId: int, checked: bool) -> None:
-        self._edit(lambda: self.logic.set_class_visible(classId, checked))
+    def onRowVisibleChanged(self, level: str, itemId: int, state: int) -> None:
+        # Partly checked is reachable only from "partly shown", so any state but unchecked means shown.
+        self._edit(lambda: self.logic.edit(level, itemId, visible=state != qt.Qt.Unchecked))
 
-    def onClassSoloToggled(self, classId: int, checked: bool) -> None:
-        self._edit(lambda: self.logic.solo_class(classId if checked else None))
+    def onRowSoloToggled(self, level: str, itemId: int, checked: bool) -> None:
+        self._edit(lambda: self.logic.solo(level, itemId if checked else None))
 
     def onResetColorsButton(self) -> None:
         self._edit(self.logic.reset_colors)
@@ -753,7 +927,8 @@ class IsoSimilarityTFLogic(ScriptedLoadableModuleLogic, DesignSession):
         design = logic.run(volumeNode, {"n_bins": 256})     # or start() / finish() to compute in a child process
         logic.set_class_opacity(design.classes[-1].id, 1.0)   # rewrites the transfer function in place
         logic.export_transfer_function("/tmp/tf.vp.json")
-        logic.export_segmentation()                           # one segment per shown class
+        logic.regroup(2)                                      # two tissues, at once
+        logic.export_segmentation()                           # one segment per shown tissue
     """
 
     def __init__(self) -> None:
@@ -798,6 +973,11 @@ class IsoSimilarityTFLogic(ScriptedLoadableModuleLogic, DesignSession):
             "max_classes": int(parameterNode.maxClasses),
             "background": parameterNode.background,
             "unconverged": parameterNode.unconverged,
+            # A Detail setting: the session maps it to "auto", a count or "all" once the classes are known.
+            "tissues": int(parameterNode.tissues),
+            "colors": parameterNode.colors,
+            "modality": None if parameterNode.modality == "auto" else parameterNode.modality,
+            "gradient_opacity": parameterNode.gradientOpacity,
         }
 
     @staticmethod
@@ -842,8 +1022,15 @@ class IsoSimilarityTFLogic(ScriptedLoadableModuleLogic, DesignSession):
             convergence = _("converged in {n} iterations").format(n=clustering.get("n_iter", "?"))
         else:
             convergence = _("did not converge ({n} iterations)").format(n=clustering.get("n_iter", "?"))
-        return _("{count} classes ({shown} shown); affinity propagation {convergence}, damping {damping}.").format(
-            count=len(design.classes), shown=shown, convergence=convergence, damping=clustering.get("damping", "?")
+        return _(
+            "{count} classes ({shown} shown) in {tissues} tissues; affinity propagation {convergence}, "
+            "damping {damping}."
+        ).format(
+            count=len(design.classes),
+            shown=shown,
+            tissues=design.n_tissues,
+            convergence=convergence,
+            damping=clustering.get("damping", "?"),
         )
 
 
@@ -871,6 +1058,7 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
             self.test_IsoSimilarityTF_restore,
             self.test_IsoSimilarityTF_outside_changes,
             self.test_IsoSimilarityTF_segments_and_preset,
+            self.test_IsoSimilarityTF_tissues,
             self.test_IsoSimilarityTF_run,
             self.test_IsoSimilarityTF_cancel,
             self.test_IsoSimilarityTF_widget,
@@ -954,6 +1142,11 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
         self._check("segments_and_preset")
         self.delayDisplay("Test passed")
 
+    def test_IsoSimilarityTF_tissues(self):
+        self.delayDisplay("Tissues and their classes: Detail, edits and solo on both levels, stored in the scene")
+        self._check("tissues")
+        self.delayDisplay("Test passed")
+
     def test_IsoSimilarityTF_run(self):
         self.delayDisplay("Full run, in Slicer and in a PythonSlicer process")
         self._check("run")
@@ -985,21 +1178,36 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
         self.assertEqual(widget._parameterNode.crossing, "strict")
         self.assertEqual(widget._parameterNode.background, "lowest")
         self.assertEqual(widget.ui.crossingComboBox.currentText, choiceLabels()["crossing"]["strict"])
+        tree = widget.ui.tissuesTreeWidget
         widget._parameterNode.inputVolume = otherVolume
-        self.assertEqual(widget.ui.classesTableWidget.rowCount, 0)
+        self.assertEqual(tree.topLevelItemCount, 0)
+        self.assertFalse(widget.ui.detailSlider.enabled)
         widget._parameterNode.inputVolume = volumeNode
-        self.assertEqual(widget.ui.classesTableWidget.rowCount, 4)
-        # An edit in the table reaches the volume property.
-        top = widget.logic.design.classes[-1]
-        widget._rowWidgets[top.id]["opacity"].value = 40
+        self.assertEqual(tree.topLevelItemCount, 4)  # one tissue per class: each a single row
+        self.assertEqual((widget.ui.detailSlider.maximum, widget._parameterNode.tissues), (3, 3))
+        # An edit in the tree reaches the volume property.
+        top = widget.logic.design.tissues[-1]
+        widget._rowWidgets[(TISSUE, top.id)]["opacity"].value = 40
         self.assertAlmostEqual(
             widget.logic.property_node.GetVolumeProperty().GetScalarOpacity().GetValue(560.0), 0.40, places=6
         )
-        widget._rowWidgets[top.id]["solo"].checked = True
-        self.assertEqual(widget.logic.design.solo_class, top.id)
-        self.assertFalse(widget._rowWidgets[0]["visible"].enabled)
+        widget._rowWidgets[(TISSUE, top.id)]["solo"].checked = True
+        self.assertEqual(widget.logic.design.solo_tissue_id, top.id)
+        self.assertFalse(widget._rowWidgets[(TISSUE, 0)]["visible"].enabled)
         widget.ui.showAllButton.click()
-        self.assertIsNone(widget.logic.design.solo_class)
+        self.assertIsNone(widget.logic.design.solo_tissue_id)
+        # The Detail slider regroups at once: one tissue holding classes 1 to 3, expandable into them.
+        widget.ui.detailSlider.value = 1
+        self.assertEqual(widget._parameterNode.tissues, 1)
+        self.assertEqual(widget.logic.design.n_tissues, 1)
+        self.assertEqual(tree.topLevelItemCount, 2)
+        self.assertEqual(tree.topLevelItem(1).childCount(), 3)
+        widget._rowWidgets[(CLASS, 2)]["visible"].checked = False
+        self.assertEqual(widget._rowWidgets[(TISSUE, 1)]["visible"].checkState(), qt.Qt.PartiallyChecked)
+        widget._rowWidgets[(TISSUE, 1)]["visible"].click()  # partly shown -> shown, classes included
+        self.assertTrue(widget.logic.design.classes[2].visible)
+        widget._parameterNode.tissues = AUTO_DETAIL
+        self.assertEqual(widget.logic.design.options["tissues"], "auto")
         # The input follows the active volume until the user picks another one.
         selectionNode = slicer.app.applicationLogic().GetSelectionNode()
         widget._followActiveVolume = True

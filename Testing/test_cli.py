@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import os
 import subprocess
 import sys
@@ -23,7 +24,8 @@ import isosimtf
 from IsoSimilarityTFLib import __version__
 from IsoSimilarityTFLib.clustering import unconverged_advice
 from IsoSimilarityTFLib.design import TransferFunctionDesign, design_transfer_function
-from isosimtf import cli, console, figures, formatting, run
+from IsoSimilarityTFLib.errors import DependencyError
+from isosimtf import cli, console, figures, formatting, preload, run
 from isosimtf.phantom import head_phantom
 from isosimtf.rendering import slicer_core_available
 from isosimtf.volume_io import Volume
@@ -178,11 +180,11 @@ def test_pictures_are_readable_and_not_blank(rendered: Path) -> None:
     foreground = np.count_nonzero(picture.max(axis=2) > 20)
     assert 0.05 * picture.shape[0] * picture.shape[1] < foreground < 0.9 * picture.shape[0] * picture.shape[1]
     grid = read_png(rendered / "classes.png")
-    shown = [c for c in _load(rendered)["classes"] if c["visible"]]
+    shown = [t for t in _load(rendered)["tissues"] if t["visible"] and not t["background"]]
     tile = RENDER_SIZE // 2
-    assert grid.shape[1] >= 2 * tile and grid.shape[0] >= tile
     columns = (grid.shape[1] - figures.GRID_GAP) // (tile + figures.GRID_GAP)
-    assert columns * ((len(shown) + columns - 1) // columns) >= len(shown)
+    assert columns == math.ceil(math.sqrt(len(shown)))  # a tile a tissue
+    assert grid.shape[0] > math.ceil(len(shown) / columns) * tile
     assert np.count_nonzero(grid.max(axis=2) > 200) > 50  # label text
 
 
@@ -657,6 +659,53 @@ def test_no_render_does_not_import_slicer_core(tmp_path: Path) -> None:
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=_env(), timeout=120)
     assert result.returncode == 0, result.stderr
+
+
+def _python(code: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=_env(), timeout=120)
+
+
+def test_help_and_usage_errors_never_import_scikit_learn() -> None:
+    code = (
+        "import sys, threading\n"
+        "from isosimtf.cli import main\n"
+        "assert main(['--help']) == 0\n"
+        "assert main(['phantom', '-o', 'out', '--bins', 'many']) == 2\n"
+        "assert main(['phantom']) == 2\n"
+        "assert 'sklearn' not in sys.modules and 'scipy' not in sys.modules, 'scikit-learn was imported'\n"
+        "assert threading.active_count() == 1, 'a background import was started'\n"
+    )
+    result = _python(code)
+    assert result.returncode == 0, result.stderr
+
+
+def test_scikit_learn_import_failure_is_one_error_line(tmp_path: Path) -> None:
+    code = (
+        "import sys\n"
+        "class Missing:  # as if scikit-learn were not installed\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        "        if name.split('.')[0] == 'sklearn':\n"
+        "            raise ModuleNotFoundError(f'No module named {name!r}', name=name)\n"
+        "sys.meta_path.insert(0, Missing())\n"
+        "from isosimtf.cli import main\n"
+        f"sys.exit(main(['phantom', '-o', {str(tmp_path / 'out')!r}, '--phantom-size', '16', '--no-render']))\n"
+    )
+    result = _python(code)
+    assert result.returncode == cli.EXIT_PROCESSING, result.stderr
+    assert "Traceback" not in result.stderr
+    lines = result.stderr.splitlines()
+    assert lines[-2].endswith("clustering (affinity propagation)")  # the stage that needs it
+    assert lines[-1] == (
+        "isosimtf: error: scikit-learn cannot be imported (No module named 'sklearn'); it is needed for affinity "
+        "propagation: pip install scikit-learn"
+    )
+
+
+def test_background_imports_report_a_failure_when_waited_for() -> None:
+    imports = preload.BackgroundImports(["json", "isosimtf_no_such_module"])
+    imports.wait("json")
+    with pytest.raises(DependencyError, match=r"^isosimtf_no_such_module cannot be imported \(No module named"):
+        imports.wait("isosimtf_no_such_module")
 
 
 def test_console_script(tmp_path: Path) -> None:

@@ -2,6 +2,7 @@
 own storage node: one segment per shown class, named and coloured as in classes.json, with the class's voxels."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -48,3 +49,20 @@ def test_cli_writes_classes_seg_nrrd(tmp_path):
             scalars = numpy_support.vtk_to_numpy(image.GetPointData().GetScalars())
             assert np.count_nonzero(scalars == segment.GetLabelValue()) == entry["voxels"]
             assert np.count_nonzero(labels == entry["id"]) == entry["voxels"]
+
+
+@pytest.mark.skipif(not slicer_core_available(), reason="slicer-core is not installed")
+def test_cli_logs_no_vtk_message(tmp_path):
+    """The whole run, segmentation export included, writes only its own lines to stderr: no VTK or MRML log line
+    (such as "vtkMRMLSubjectHierarchyNode::GetSubjectHierarchyNode: Invalid scene given", which detaching a
+    Segmentations module logic from the scene used to log)."""
+    import subprocess
+    import sys
+
+    argv = [sys.executable, "-m", "isosimtf", "phantom", "-o", str(tmp_path / "out"), "--phantom-size", "32"]
+    result = subprocess.run([*argv, "--size", "64"], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert (tmp_path / "out" / "classes.seg.nrrd").is_file()
+    foreign = [line for line in result.stderr.splitlines() if not re.match(r"\[\d+/\d+\] ", line)]
+    assert not foreign, "\n".join(foreign)
+    assert not re.search(r"\bvtk[A-Z]|WARN\||ERR\|", result.stderr)

@@ -5,7 +5,7 @@ import pytest
 
 from IsoSimilarityTFLib import design_transfer_function
 from IsoSimilarityTFLib.classes import IsovalueClass
-from IsoSimilarityTFLib.look import RAMP, default_look, detect_kind, ramp_colors
+from IsoSimilarityTFLib.look import RAMP, default_look, detect_kind, gradient_ramp_top, ramp_colors
 
 
 def make_classes(voxels, contact=None, background=0):
@@ -103,3 +103,39 @@ def test_modality_option_chooses_the_curve():
     values = np.where(np.indices((20, 20, 20)).sum(axis=0) > 25, 1000, 100) + rng.normal(0, 10, (20, 20, 20))
     assert design_transfer_function(values).kind == "mr"
     assert design_transfer_function(values, modality="CT").kind == "ct"
+
+
+def test_gradient_opacity_is_an_option_off_by_default():
+    values = np.zeros((16, 16, 16), dtype=np.int16) - 1000
+    values[4:12, 4:12, 4:12] = 40
+    values[6:10, 6:10, 6:10] = 1000
+    off = design_transfer_function(values, (1.0, 1.0, 1.0))
+    gradient = off.volume_property().GetGradientOpacity()
+    assert off.gradient_ramp_top is None and gradient.GetValue(0.0) == gradient.GetValue(500.0) == 1.0
+    on = design_transfer_function(values, (1.0, 1.0, 1.0), gradient_opacity="auto")
+    top = on.gradient_ramp_top
+    gradient = on.volume_property().GetGradientOpacity()
+    assert top > 0 and gradient.GetValue(0.0) == 0.0 and gradient.GetValue(top) == pytest.approx(1.0)
+    assert gradient_ramp_top([0.0, 100.0, 300.0]) == pytest.approx(75.0)  # median contrast 150 over 2 mm
+
+
+def test_designs_fit_the_gpu_lookup_table():
+    """VTK's own estimate (EstimateMinNumberOfSamples, as the GPU ray caster computes it) stays at 4096 or less."""
+    from isosimtf.rendering import lookup_table_width
+
+    rng = np.random.default_rng(3)
+    values = (np.indices((24, 24, 24)).sum(axis=0) * 60 - 1500 + rng.normal(0, 30, (24, 24, 24))).astype(np.int16)
+    for tissues in ("auto", "all"):
+        design = design_transfer_function(values, (0.5, 0.5, 0.5), tissues=tissues)
+        assert lookup_table_width(design.volume_property(), design.value_range) <= 4096
+
+
+def test_ct_colour_follows_each_class_hu():
+    classes = make_classes([100000, 40000, 30000, 20000, 10000])
+    values = np.array([-1000, 40, 300, 700, 1200.0])
+    tissue_of = np.array([0, 1, 1, 1, 2])
+    ct, _, _ = default_look(classes, tissue_of, values, "ct")
+    assert [sum(ct[c]) for c in (1, 2, 3, 4)] == sorted(sum(ct[c]) for c in (1, 2, 3, 4))
+    assert ct[2] != ct[3]  # one tissue, two densities, two colours on CT
+    mr, _, _ = default_look(classes, tissue_of, values, "mr")
+    assert mr[1] == mr[2] == mr[3]  # one colour per tissue on uncalibrated data

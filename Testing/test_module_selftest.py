@@ -15,20 +15,13 @@ MODULE_FILE = Path(__file__).resolve().parents[1] / "IsoSimilarityTF" / "IsoSimi
 
 @pytest.fixture()
 def harness(slicer_app):
-    import slicer
-
-    segmentations = slicer.vtkSlicerSegmentationsModuleLogic()  # as the application sets it up
-    segmentations.SetMRMLApplicationLogic(slicer_app.app_logic)
-    segmentations.SetMRMLScene(slicer_app.scene)
-
     def new_session():
         return DesignSession(slicer_app.volume_rendering_logic)
 
     def add_volume(values, spacing, name):
         return slicer_app.add_volume(values, spacing=spacing, name=name)
 
-    yield new_session, add_volume
-    segmentations.SetMRMLScene(None)
+    return new_session, add_volume
 
 
 @pytest.mark.parametrize("name", list(selftest.CHECKS))

@@ -112,19 +112,12 @@ def test_uint8_volume(slicer_app):
 
 
 def test_scene_saved_and_reopened_keeps_tf_and_design(tmp_path, slicer_app, phantom, phantom_design):
-    from isosimtf.rendering import HeadlessSlicer
-
     volume = add_phantom(slicer_app, phantom)
     design = type(phantom_design).from_json(phantom_design.to_json())
     design.set_class(design.classes[-1].id, color=(0.25, 0.5, 0.75))
     apply_design(volume, design, slicer_app.volume_rendering_logic)
-    bundle = tmp_path / "bundle"
-    bundle.mkdir()
-    assert slicer_app.scene.SaveSceneToSlicerDataBundleDirectory(str(bundle))
 
-    with HeadlessSlicer(size=(64, 64)) as reopened:
-        reopened.scene.SetURL(str(bundle / "bundle.mrml"))
-        assert reopened.scene.Connect() == 1
+    def check(reopened):
         volume_back = reopened.scene.GetFirstNodeByName("Head")
         node = design_node_of(volume_back)
         assert node is not None and mrml.design_text_node(volume_back) is not None
@@ -134,6 +127,8 @@ def test_scene_saved_and_reopened_keeps_tf_and_design(tmp_path, slicer_app, phan
         restored = design_of(node)
         assert restored.to_dict()["classes"] == design.to_dict()["classes"]
         assert_node_shows(node, restored)
+
+    save_and_reopen(slicer_app.scene, tmp_path / "bundle", check)
 
 
 def test_closing_the_scene_mid_way_gives_a_clear_error(slicer_app, phantom, phantom_design):
@@ -440,3 +435,66 @@ def test_a_preset_applies_to_another_volume(slicer_app, phantom, phantom_design)
     display = slicer_app.show_volume(volume)
     display.GetVolumePropertyNode().CopyContent(slicer_app.volume_rendering_logic.GetPresetByName("Head classes"))
     assert mrml.shows_design(display.GetVolumePropertyNode(), phantom_design)
+
+
+# Tissues -----------------------------------------------------------------------------------------------------------
+def test_scene_saved_and_reopened_keeps_the_grouping_and_tissue_edits(tmp_path, slicer_app, phantom, phantom_design):
+    from IsoSimilarityTFLib.session import TISSUE, DesignSession
+
+    volume = add_phantom(slicer_app, phantom)
+    session = DesignSession(slicer_app.volume_rendering_logic)
+    session.apply(volume, fresh(phantom_design))
+    session.regroup(2)
+    tissue = next(t for t in session.design.tissues if not t.background)
+    session.edit(TISSUE, tissue.id, color=(0.1, 0.2, 0.3), opacity=0.3)
+    session.solo(TISSUE, tissue.id)
+
+    def check(reopened):
+        volume_back = reopened.scene.GetFirstNodeByName("Head")
+        other = DesignSession(reopened.volume_rendering_logic)
+        restored = other.restore(volume_back)
+        assert restored.n_tissues == 2 and restored.options["tissues"] == 2 and other.detail() == 2
+        assert restored.solo_tissue_id == tissue.id
+        assert other.rows() == session.rows()
+        assert not mrml.modified_outside(volume_back)
+        assert_node_shows(other.property_node, restored)
+
+    save_and_reopen(slicer_app.scene, tmp_path / "bundle", check)
+
+
+def tissue_lookup(design, which="shown"):
+    """Expected label per class when exporting tissues: 1..N in tissue order, 0 for classes not exported."""
+    lookup = np.zeros(len(design.classes), dtype=int)
+    number = 0
+    for tissue in design.tissues:
+        members = [c for c in tissue.classes if which == "all" or design.is_shown(c)]
+        if members:
+            number += 1
+            lookup[members] = number
+    return lookup, number
+
+
+def test_export_segmentation_by_tissue_holds_the_voxels_of_its_exported_classes(
+    slicer_app, segmentations, phantom, phantom_design
+):
+    from IsoSimilarityTFLib.quantize import quantize
+
+    volume = add_phantom(slicer_app, phantom)
+    design = fresh(phantom_design)
+    design.regroup(2)
+    tissue = next(t for t in design.tissues if not t.background and len(t.classes) > 1)
+    design.set_class(tissue.classes[0], visible=False)  # a hidden class leaves its tissue's segment
+    class_ids = design.labels[quantize(phantom_values(volume), design.n_bins, design.value_range).bins]
+    for which in ("shown", "all"):
+        node = mrml.export_segmentation(volume, design, which=which, level="tissue")
+        lookup, count = tissue_lookup(design, which)
+        segmentation = node.GetSegmentation()
+        assert segmentation.GetNumberOfSegments() == count
+        exported = [t for t in design.tissues if lookup[t.classes].any()]
+        for index, exported_tissue in enumerate(exported):
+            segment = segmentation.GetNthSegment(index)
+            assert segment.GetName() == mrml.tissue_segment_name(exported_tissue)
+            assert segment.GetColor() == pytest.approx(exported_tissue.color, abs=1e-6)
+        np.testing.assert_array_equal(segment_labels(slicer_app.scene, node, volume), lookup[class_ids])
+    with pytest.raises(ValueError, match="level"):
+        mrml.export_segmentation(volume, design, level="organ")

@@ -34,7 +34,7 @@ BINDABLE_WIDGETS = {
     "node": {"qMRMLNodeComboBox"},
 }
 # Choice parameters that offer more than the engine option's words ("number": the preference is preferenceValue).
-EXTRA_CHOICES = {"preference": {"number"}}
+EXTRA_CHOICES = {"preference": {"number"}, "modality": {"auto"}}
 # Parameter node field -> engine option whose table entry gives its range or choices and its default.
 ENGINE_OPTIONS = {
     "bins": "n_bins",
@@ -48,7 +48,14 @@ ENGINE_OPTIONS = {
     "maxClasses": "max_classes",
     "background": "background",
     "unconverged": "unconverged",
+    "tissues": "tissues",
+    "colors": "colors",
+    "modality": "modality",
+    "gradientOpacity": "gradient_opacity",
 }
+# Fields whose default stands for the engine option's default in the field's own type: levels 0 is None (all levels),
+# tissues AUTO_DETAIL (0) is "auto", modality "auto" is None (detected).
+SPECIAL_DEFAULTS = {"levels": "0", "tissues": "AUTO_DETAIL", "modality": "'auto'"}
 
 
 def _module_tree() -> ast.Module:
@@ -226,8 +233,10 @@ def test_engine_parameters_take_their_checks_and_defaults_from_the_options_table
     for name, option in ENGINE_OPTIONS.items():
         annotation, default = fields[name]
         assert _table_option(annotation.slice.elts[1]) == option, name
-        if name == "levels":  # 0 stands for the engine's None (all levels)
-            assert ast.literal_eval(default) == 0 and OPTIONS[option].none_means
+        if name in SPECIAL_DEFAULTS:
+            assert ast.unparse(default) == SPECIAL_DEFAULTS[name], name
+            engine_default = OPTIONS[option].default
+            assert engine_default is None or engine_default == "auto", name
         else:
             assert ast.unparse(default) == f"_default({option!r})", name
 
@@ -236,7 +245,9 @@ def test_choice_parameters_offer_the_engine_words():
     fields = _parameter_fields()
     for name, option in ENGINE_OPTIONS.items():
         kind, choices = _annotation_kind(fields[name][0])
-        if OPTIONS[option].choices:
+        if name == "tissues":  # the Detail slider: an integer whose 0 is "auto" and whose top is "all"
+            assert kind == "int"
+        elif OPTIONS[option].choices:
             assert kind == "choice" and set(choices) == set(OPTIONS[option].choices) | EXTRA_CHOICES.get(name, set())
 
 
@@ -400,9 +411,9 @@ def test_requirements_name_scikit_learn():
     assert any(re.match(r"scikit-learn\s*>=\s*1\.3", r) for r in requirements)
 
 
-def test_classes_table_columns_match_the_module():
-    table = next(w for w in _ui_root().iter("widget") if w.get("name") == "classesTableWidget")
-    assert table.get("class") == "QTableWidget"
+def test_tissue_tree_columns_match_the_module():
+    table = next(w for w in _ui_root().iter("widget") if w.get("name") == "tissuesTreeWidget")
+    assert table.get("class") == "QTreeWidget"
     columns = [c.findtext("property/string") for c in table.findall("column")]
     assignment = next(
         node
@@ -424,12 +435,21 @@ def _field_check(annotation: ast.expr):
     for extra in annotation.slice.elts[1:] if isinstance(annotation, ast.Subscript) else []:
         if isinstance(extra, ast.Call) and getattr(extra.func, "id", None) == "_withinRange":
             entry = OPTIONS[ast.literal_eval(extra.args[0])]
-            keywords = {k.arg: ast.literal_eval(k.value) for k in extra.keywords}
+            keywords = {k.arg: _constant(k.value) for k in extra.keywords}
             return keywords.get("minimum", entry.minimum), entry.maximum, None
         if isinstance(extra, ast.Call) and getattr(extra.func, "id", None) == "WithinRange":
             low, high = (ast.literal_eval(a) for a in extra.args)
             return low, high, None
     return None, None, None
+
+
+def _constant(node: ast.expr):
+    """A literal, or a constant the module imports from the library (AUTO_DETAIL)."""
+    if isinstance(node, ast.Name):
+        from IsoSimilarityTFLib import session
+
+        return getattr(session, node.id)
+    return ast.literal_eval(node)
 
 
 def test_module_tests_write_only_valid_values_into_the_parameter_node():

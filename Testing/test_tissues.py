@@ -105,7 +105,12 @@ def test_regroup_is_instant_and_consistent(design):
         members = sorted(c for t in design.tissues for c in t.classes)
         assert members == list(range(len(design.classes)))
         for t in design.tissues:
-            assert all(design.classes[c].color == t.color for c in t.classes if design.classes[c].visible)
+            shown = [design.classes[c] for c in t.classes if design.classes[c].visible]
+            if design.kind == "ct":  # colour follows each class's HU along the ramp: brighter with density
+                brightness = [sum(c.color) for c in shown]
+                assert brightness == sorted(brightness)
+            else:
+                assert all(c.color == t.color for c in shown)
     elapsed = (time.perf_counter() - start) / design.hierarchy.max_tissues
     assert elapsed < 0.05  # nothing heavy is recomputed
     assert design.similarity is similarity
@@ -172,3 +177,9 @@ def test_tissues_option_is_checked():
         design_transfer_function(values, tissues="some")
     with pytest.raises(ValueError, match="colors"):
         design_transfer_function(values, colors="rainbow")
+    with pytest.raises(ValueError, match="modality"):
+        design_transfer_function(values, modality="PET")
+    with pytest.raises(ValueError, match="gradient_opacity"):
+        design_transfer_function(values, gradient_opacity="yes")
+    with pytest.raises(ValueError, match="tissues"):
+        design_transfer_function(values, tissues=0)

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import gzip
+import io
+import plistlib
 import struct
+import tarfile
 import zlib
 from pathlib import Path
 
@@ -518,3 +521,50 @@ def test_colin27_brain_mri() -> None:
 def test_real_dataset_path_unknown_name() -> None:
     with pytest.raises(KeyError):
         real_dataset_path("no-such-dataset")
+
+
+def _write_inv3(path: Path, values: np.ndarray, spacing: tuple[float, float, float], *, voxels_first: bool) -> None:
+    """An InVesalius project as InVesalius writes it (gzip tar of a folder), ``matrix.dat`` before or after
+    ``main.plist``, with a member before both (the masks and surfaces of a real project)."""
+    main = {"matrix": {"shape": list(values.shape), "dtype": "int16", "filename": "matrix.dat"}, "spacing": spacing}
+    members = [
+        ("mask_0.dat", b"\1" * 1000),
+        ("main.plist", plistlib.dumps(main)),
+        ("matrix.dat", values.astype("<i2").tobytes()),
+    ]
+    if voxels_first:
+        members.reverse()
+    with tarfile.open(path, "w:gz") as archive:
+        for name, data in members:
+            info = tarfile.TarInfo(f"tmpproject/{name}")
+            info.size = len(data)
+            archive.addfile(info, io.BytesIO(data))
+
+
+@pytest.mark.parametrize("voxels_first", [False, True])
+def test_inv3_is_read_whatever_the_member_order(tmp_path: Path, voxels_first: bool) -> None:
+    values = (np.arange(5 * 6 * 7, dtype=np.int16).reshape(5, 6, 7) * 13 - 1000).astype(np.int16)
+    path = tmp_path / "project.inv3"
+    _write_inv3(path, values, (0.5, 0.5, 1.25), voxels_first=voxels_first)
+    volume = read_volume(path)
+    assert volume.values.dtype == np.int16 and volume.values.dtype.isnative
+    np.testing.assert_array_equal(volume.values, values)
+    assert volume.spacing == (0.5, 0.5, 1.25) and volume.name == "project"
+    np.testing.assert_array_equal(volume.directions, np.diag([-1.0, 1.0, 1.0]))
+
+
+def test_inv3_errors(tmp_path: Path, capfd) -> None:
+    values = np.zeros((5, 6, 7), dtype=np.int16)
+    path = tmp_path / "project.inv3"
+    _write_inv3(path, values, (1.0, 1.0, 1.0), voxels_first=False)
+    data = path.read_bytes()
+    cut = tmp_path / "cut.inv3"
+    cut.write_bytes(data[: len(data) // 2])
+    assert "corrupt or truncated" in _read_error(cut, capfd)
+    plain = tmp_path / "plain.inv3"
+    plain.write_bytes(gzip.compress(b"not a tar archive" * 40))
+    assert "not an InVesalius project (gzip tar expected" in _read_error(plain, capfd)
+    project = tmp_path / "empty.inv3"
+    with tarfile.open(project, "w:gz"):
+        pass
+    assert "no main.plist" in _read_error(project, capfd)

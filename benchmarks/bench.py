@@ -71,6 +71,9 @@ TARGET_PEAK_1024_OUT_OF_CORE_MB = 1024.0
 TARGET_PEAK_BEYOND_MEMORY_MB = 3072.0
 OUT_OF_CORE_ZARR = "out of core: 1024^3 uint16 Zarr (64x256x256 chunks)"
 OUT_OF_CORE_BIG = "beyond memory: 2048x2048x3200 uint16 raw NRRD (25 GiB)"
+# Targets of issue 12 for the command line on the head CT (wall time of the whole command, on a quiet machine).
+TARGET_LATENCY_NO_RENDER_S = 1.5
+TARGET_LATENCY_FULL_S = 3.5
 # Cells per chunk tried for the floor; the fastest on this machine is the floor.
 FLOOR_CHUNK_CELLS = (1 << 17, 1 << 18, 1 << 19)
 
@@ -537,6 +540,44 @@ def run_child(cfg: dict, timeout: float) -> dict:
     return {"config": cfg, "error": f"exit code {completed.returncode}: " + " | ".join(tail)}
 
 
+def run_latency(cfg: dict, timeout: float) -> dict:
+    """Wall time of whole ``isosimtf`` commands, the way a user runs them: each variant in turn (interleaved, so a
+    change of machine load hits them alike), ``repeats`` times; medians and the load average around the runs."""
+    from isosimtf.volume_io import real_dataset_path
+
+    source = real_dataset_path(cfg["source"])
+    if source is None:
+        return {"config": cfg, "error": f"{cfg['source']} is not installed"}
+    env = dict(os.environ)
+    env.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+    command = [sys.executable, "-m", "isosimtf"]
+    with tempfile.TemporaryDirectory(prefix="isosimtf-latency-") as folder:
+        variants = {
+            "help": [*command, "--help"],
+            "no_render": [*command, str(source), "-o", str(Path(folder) / "no-render"), "--no-render", "-q"],
+            "full": [*command, str(source), "-o", str(Path(folder) / "full"), "-q"],
+        }
+        times: dict[str, list[float]] = {name: [] for name in variants}
+        load_before = os.getloadavg()
+        for _ in range(cfg["repeats"]):
+            for name, argv in variants.items():
+                start = time.perf_counter()
+                completed = subprocess.run(argv, capture_output=True, text=True, timeout=timeout, env=env, cwd=ROOT)
+                if completed.returncode != 0:
+                    return {"config": cfg, "error": f"{name}: {completed.stderr.strip().splitlines()[-1:]}"}
+                times[name].append(time.perf_counter() - start)
+        stages = json.loads((Path(folder) / "full" / "classes.json").read_text())["timings_s"]
+    return {
+        "config": cfg,
+        "median_s": {name: _median(values) for name, values in times.items()},
+        "min_s": {name: min(values) for name, values in times.items()},
+        "times_s": times,
+        "last_full_run_stages_s": stages,
+        "loadavg_before": load_before,
+        "loadavg_after": os.getloadavg(),
+    }
+
+
 def machine_description() -> dict:
     import numpy
     import sklearn
@@ -710,7 +751,9 @@ def configurations(quick: bool, data: Path | None = None, big: bool = False) -> 
                 "timeout_s": 3600.0,
             }
         )
+    latency = [{"kind": "latency", "name": "command line: head CT", "source": "head-ct", "repeats": 3 if quick else 7}]
     return {
+        "latency": latency,
         "floor": floor,
         "out_of_core": out_of_core,
         "sizes": sizes,
@@ -887,10 +930,50 @@ def build_report(machine: dict, groups: dict[str, list[dict]], quick: bool, wall
                 "PASS" if peak <= TARGET_PEAK_1024_OUT_OF_CORE_MB else "FAIL",
             ]
         )
+    latency = _by_name(everything, "command line: head CT")
+    if latency and "error" not in latency:
+        load = f"load {latency['loadavg_before'][0]:.1f} before, {latency['loadavg_after'][0]:.1f} after"
+        for variant, words, limit in (
+            ("no_render", "isosimtf Cranium.inv3 --no-render", TARGET_LATENCY_NO_RENDER_S),
+            ("full", "isosimtf Cranium.inv3 (all pictures)", TARGET_LATENCY_FULL_S),
+        ):
+            measured = latency["median_s"][variant]
+            verdicts12.append(
+                [
+                    f"{words}, wall time of the command, median",
+                    f"<= {limit} s (quiet machine)",
+                    f"{_fmt_s(measured)} ({load})",
+                    "PASS" if measured <= limit else "FAIL",
+                ]
+            )
     summary["floor"] = floor_summary
+    summary["latency"] = latency
     summary["targets"] += [dict(zip(["target", "limit", "measured", "verdict"], v)) for v in verdicts12]
     md.append("\n## Targets of issue 12\n")
     md.append(_table(["target", "limit", "measured", "verdict"], verdicts12))
+    if latency and "error" not in latency:
+        md.append("\n\n### Command-line latency (head CT, whole commands, interleaved)\n")
+        md.append(
+            _table(
+                ["command", "median", "min", "runs"],
+                [
+                    [
+                        variant,
+                        _fmt_s(latency["median_s"][variant]),
+                        _fmt_s(latency["min_s"][variant]),
+                        str(len(latency["times_s"][variant])),
+                    ]
+                    for variant in ("help", "no_render", "full")
+                ],
+            )
+        )
+        stages = ", ".join(f"{k} {_fmt_s(v)}" for k, v in latency["last_full_run_stages_s"].items())
+        md.append(
+            f"\n\nWall time of `python -m isosimtf` from start to exit, each variant in turn, "
+            f"{latency['config']['repeats']} rounds; load average {latency['loadavg_before']} before and "
+            f"{latency['loadavg_after']} after (2 cores: a load above 1 slows every figure). Stages of the last full "
+            f"run: {stages}.\n"
+        )
     md.append("\n\n### Similarity against the numpy floor (same process, interleaved)\n")
     md.append(
         _table(
@@ -1197,7 +1280,7 @@ def main(argv: list[str] | None = None) -> int:
         for cfg in cfgs:
             timeout = cfg.get("timeout_s", 240.0 if cfg["kind"] == "reference" else 600.0)
             log(f"[{time.perf_counter() - started:6.0f} s] {cfg['name']} ...")
-            result = run_child(cfg, timeout)
+            result = run_latency(cfg, timeout) if cfg["kind"] == "latency" else run_child(cfg, timeout)
             if "error" in result:
                 log(f"    ERROR: {result['error']}")
             elif cfg["kind"] == "floor":
@@ -1205,6 +1288,8 @@ def main(argv: list[str] | None = None) -> int:
                     f"    floor {_fmt_s(result['floor_median_s'])}, ours {_fmt_s(result['ours_median_s'])}: "
                     f"{result['multiple']:.2f}x"
                 )
+            elif cfg["kind"] == "latency":
+                log("    " + ", ".join(f"{name} {_fmt_s(t)}" for name, t in result["median_s"].items()))
             elif cfg["kind"] == "reference":
                 log(f"    fast {_fmt_s(result['fast_median_s'])}, reference {_fmt_s(result['reference_median_s'])}")
             else:

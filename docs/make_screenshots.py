@@ -25,6 +25,7 @@ def main() -> None:
         "phantom": "phantom",
         "head-ct": real_dataset_path("head-ct"),
         "brain-mri": real_dataset_path("brain-mri"),
+        "brain-stripped": real_dataset_path("brain-stripped"),
     }
     SHOTS.mkdir(parents=True, exist_ok=True)
     for name, source in inputs.items():

@@ -8,7 +8,7 @@ from typing import Optional
 
 import numpy as np
 
-from IsoSimilarityTFLib.classes import IsovalueClass
+from IsoSimilarityTFLib.design import Tissue
 
 from .formatting import format_percent, format_ranges
 
@@ -71,12 +71,11 @@ def draw_text(image: np.ndarray, text: str, x: int, y: int, font_size: int, colo
     return width
 
 
-
-def class_label_lines(item: IsovalueClass, decimals: int) -> tuple[str, str]:
-    """The two label lines of a class tile: rank and voxel share, then the intensity range(s)."""
-    first = f"#{item.rank}  {format_percent(item.fraction)}% of voxels"
-    return first, format_ranges(item.value_ranges, decimals, limit=1)
-
+def tissue_label_lines(tissue: Tissue, fraction: float, decimals: int) -> tuple[str, str]:
+    """The two label lines of a tissue tile: its name (as its segment is named) and voxel share, then its intensity
+    range(s)."""
+    first = f"Tissue {tissue.id + 1}  {format_percent(fraction)}% of voxels"
+    return first, format_ranges(tissue.value_ranges, decimals, limit=1)
 
 
 def class_grid(

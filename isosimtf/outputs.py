@@ -2,7 +2,7 @@
 
 The folder holds ``similarity.npy``, ``similarity.png``, ``classes.json``, ``transfer_function.vp.json``,
 ``transfer_function.vp`` and, when rendering, ``render.png`` (the volume rendered with the automatic transfer function
-by Slicer's own volume rendering, headless), ``classes.png`` (one small render per shown class, labelled) and
+by Slicer's own volume rendering, headless), ``classes.png`` (one small render per shown tissue, labelled) and
 ``scene/scene.mrml`` (a Slicer scene with the volume and the transfer function, to open in Slicer) and
 ``classes.seg.nrrd`` (one segment per shown class, Slicer's segmentation file).
 """
@@ -10,20 +10,22 @@ by Slicer's own volume rendering, headless), ``classes.png`` (one small render p
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Optional
+from typing import TYPE_CHECKING, Any, Optional
 
 import numpy as np
 
-from IsoSimilarityTFLib.classes import IsovalueClass
-from IsoSimilarityTFLib.design import TransferFunctionDesign
+from IsoSimilarityTFLib.design import Tissue, TransferFunctionDesign
 from IsoSimilarityTFLib.errors import OutputError, RenderError
 from IsoSimilarityTFLib.pictures import similarity_image
 
 from .console import ProgressPrinter
-from .figures import class_grid, class_label_lines
+from .figures import class_grid, tissue_label_lines
 from .formatting import value_decimals
 from .output_folder import save_scene
 from .volume_io import Volume
+
+if TYPE_CHECKING:  # pragma: no cover - typing only
+    from .rendering import HeadlessSlicer
 
 #: Output file names, by role.
 OUTPUT_FILES = {
@@ -89,7 +91,6 @@ class RunResult:
         return [*self.files.values(), *self.scene_files]
 
 
-
 def write_data_files(result: RunResult) -> None:
     """Write similarity.npy/png, the transfer function files and classes.json into the output folder."""
     from .rendering import write_png
@@ -118,10 +119,9 @@ def write_classes_json(result: RunResult) -> Path:
     return path
 
 
-def shown_classes(design: TransferFunctionDesign) -> list[IsovalueClass]:
-    """The classes shown by the transfer function, largest first."""
-    return sorted((c for c in design.classes if design.is_shown(c.id)), key=lambda c: c.rank)
-
+def shown_tissues(design: TransferFunctionDesign) -> list[Tissue]:
+    """The tissues the transfer function shows (some class of theirs is shown), in intensity order."""
+    return [t for t in design.tissues if not t.background and any(design.is_shown(c) for c in t.classes)]
 
 
 def render_outputs(
@@ -134,56 +134,46 @@ def render_outputs(
     backdrop: str = DEFAULT_BACKDROP,
     ray_casting: str = DEFAULT_RAY_CASTING,
 ) -> None:
-    """Render with Slicer's volume rendering (headless): render.png, classes.png, and save the Slicer scene.
+    """Render with Slicer's volume rendering (headless): classes.png, render.png, and save the Slicer scene.
 
-    One headless Slicer serves all pictures: the design goes onto the volume through :func:`mrml.apply_design`;
-    render.png is framed to its content (the volume fills the picture with a small margin), and each class tile
-    shows ``design.solo(class)`` written into the same property node in place, seen from the same narrowed camera.
-    The scene is saved after solo mode is left, so it shows the full transfer function as in render.png.
+    One headless Slicer serves all pictures: the design goes onto the volume through :func:`mrml.apply_design`. The
+    window starts at tile size, where the camera is fitted and framed to the content (the volume fills the pictures
+    with a small margin) and each tissue tile shows ``design.solo_tissue(tissue)`` written into the same property node
+    in place; only then does the window grow to ``size`` for render.png, seen from the same camera: every ray cast
+    at full size is one render.png keeps. The scene is saved after solo mode is left, so it shows the full transfer
+    function as in render.png.
 
     Args:
         backdrop: "black" or "slicer" (Slicer's blue gradient), see ``rendering.BACKDROPS``.
         ray_casting: "cpu" or "gpu", see ``rendering.RAY_CASTING``.
     """
-    from IsoSimilarityTFLib.mrml import apply_design, update_property_node
+    from IsoSimilarityTFLib.mrml import apply_design
 
     from .rendering import HeadlessSlicer, write_png
 
     design, volume, outdir = result.design, result.volume, result.outdir
     tile_size = tile_size or max(MIN_SIZE, size // 2)
-    classes = shown_classes(design)
-    decimals = value_decimals(design.value_range, design.n_bins)
     background = (0.0, 0.0, 0.0) if backdrop == "black" else None
-    with HeadlessSlicer(size=(size, size), rendering_method=ray_casting, background=background) as headless:
+    with HeadlessSlicer(size=(tile_size, tile_size), rendering_method=ray_casting, background=background) as headless:
         volume_node = headless.add_volume(volume.values, name=volume.name, ijk_to_ras=volume.ijk_to_ras())
+        # The scene's copy of the volume is written raw: gzip took longer than all the tissue tiles (0.2 s on the
+        # head CT), and the input is at hand for anyone who wants it small.
+        volume_node.AddDefaultStorageNode()
+        volume_node.GetStorageNode().SetUseCompression(False)
         property_node = apply_design(volume_node, design, headless.volume_rendering_logic)
+        headless.frame_camera(view)
+        tissues = shown_tissues(design)
+        if tissues:
+            path = outdir / OUTPUT_FILES["classes_png"]
+            write_png(_tissue_grid(headless, property_node, design, tissues, progress), path)
+            result.files["classes_png"] = path
+
         if progress is not None:
             progress.update("render.png")
-        picture = headless.render(view, frame=True)
+        headless.render_window.SetSize(size, size)
         path = outdir / OUTPUT_FILES["render_png"]
-        write_png(picture, path)
+        write_png(headless.render(view=None, reset_camera=False), path)
         result.files["render_png"] = path
-
-        if classes:
-            headless.render_window.SetSize(tile_size, tile_size)
-            tiles, labels, colors = [], [], []
-            previous_solo = design.solo_class
-            try:
-                for number, item in enumerate(classes, 1):
-                    if progress is not None:
-                        progress.update(f"class {number} of {len(classes)}")
-                    design.solo(item.id)
-                    update_property_node(property_node, design)
-                    tiles.append(headless.render(view=None, reset_camera=False))
-                    labels.append(class_label_lines(item, decimals))
-                    colors.append(item.color)
-            finally:
-                design.solo(previous_solo)
-                update_property_node(property_node, design)
-                headless.render_window.SetSize(size, size)
-            path = outdir / OUTPUT_FILES["classes_png"]
-            write_png(class_grid(tiles, labels, colors), path)
-            result.files["classes_png"] = path
 
         if progress is not None:
             progress.update("classes.seg.nrrd")
@@ -195,31 +185,53 @@ def render_outputs(
         result.files["scene"] = outdir / OUTPUT_FILES["scene"]
 
 
+def _tissue_grid(
+    headless: "HeadlessSlicer",
+    property_node: Any,
+    design: TransferFunctionDesign,
+    tissues: list[Tissue],
+    progress: Optional[ProgressPrinter],
+) -> np.ndarray:
+    """classes.png: one tile per tissue, rendered alone (solo) in the current window and camera, labelled."""
+    from IsoSimilarityTFLib.mrml import update_property_node
+
+    decimals = value_decimals(design.value_range, design.n_bins)
+    total = max(int(np.sum(design.bin_voxels)), 1)
+    tiles, labels = [], []
+    previous_class, previous_tissue = design.solo_class, design.solo_tissue_id
+    try:
+        for number, tissue in enumerate(tissues, 1):
+            if progress is not None:
+                progress.update(f"tissue {number} of {len(tissues)}")
+            design.solo_tissue(tissue.id)
+            update_property_node(property_node, design)
+            tiles.append(headless.render(view=None, reset_camera=False))
+            labels.append(tissue_label_lines(tissue, tissue.voxels / total, decimals))
+    finally:
+        if previous_tissue is not None:
+            design.solo_tissue(previous_tissue)
+        else:
+            design.solo(previous_class)
+        update_property_node(property_node, design)
+    return class_grid(tiles, labels, [t.color for t in tissues])
+
+
 def write_segmentation(result: RunResult, headless, volume_node) -> None:
     """classes.seg.nrrd: one segment per shown class, with its name, colour and voxels (Slicer opens it as a
-    segmentation). The segmentation is not left in the scene saved afterwards."""
-    import slicer
+    segmentation). The segmentation is not left in the scene saved afterwards.
 
+    No Segmentations module logic is attached to the scene: ``export_segmentation`` registers the converter rules it
+    needs, and detaching such a logic afterwards logs a VTK warning ("Invalid scene given")."""
     from IsoSimilarityTFLib.mrml import export_segmentation
 
-    from .rendering import captured_vtk_messages
-
-    segmentations = slicer.vtkSlicerSegmentationsModuleLogic()  # registers the segmentation converters, as Slicer does
-    segmentations.SetMRMLApplicationLogic(headless.app_logic)
-    segmentations.SetMRMLScene(headless.scene)
     path = result.outdir / OUTPUT_FILES["segmentation"]
-    try:
-        node = export_segmentation(volume_node, result.design)
-        storage = headless.scene.AddNewNodeByClass("vtkMRMLSegmentationStorageNode")
-        storage.SetFileName(str(path))
-        written = storage.WriteData(node)
-        for added in (storage, node.GetDisplayNode(), node):
-            if added is not None:
-                headless.scene.RemoveNode(added)
-    finally:
-        # Detaching the logic makes the subject hierarchy warn "Invalid scene given" on stderr: nothing to report.
-        with captured_vtk_messages():
-            segmentations.SetMRMLScene(None)
+    node = export_segmentation(volume_node, result.design)
+    storage = headless.scene.AddNewNodeByClass("vtkMRMLSegmentationStorageNode")
+    storage.SetFileName(str(path))
+    written = storage.WriteData(node)
+    for added in (storage, node.GetDisplayNode(), node):
+        if added is not None:
+            headless.scene.RemoveNode(added)
     if not written:
         raise RenderError(f"Slicer could not write '{path}'")
     result.files["segmentation"] = path

@@ -639,10 +639,21 @@ class HeadlessSlicer:
         """
         self._check_open()
         picture = self._render(view, reset_camera)
-        if frame and self.camera_node is not None:
-            if frame_content(self.camera_node.GetCamera(), picture, backdrop=self.backdrop()):
-                picture = self._render(None, False)
+        if frame and self._frame(picture):
+            picture = self._render(None, False)
         return picture
+
+    def frame_camera(self, view: str | None = "anterior") -> None:
+        """Point the camera (``view``), fit it to the volume and narrow it onto what the view shows, without rendering
+        the framed picture: done in a small window, this frames the pictures rendered next (larger) at little cost.
+        """
+        self._check_open()
+        self._frame(self._render(view, True))
+
+    def _frame(self, picture: np.ndarray) -> bool:
+        """Narrow the camera onto what ``picture`` shows (:func:`frame_content`); whether the camera changed."""
+        camera_node = self.camera_node
+        return camera_node is not None and frame_content(camera_node.GetCamera(), picture, backdrop=self.backdrop())
 
     def backdrop(self) -> np.ndarray:
         """The picture of the empty view (its backdrop): ``(height, width, 3)`` uint8, rendered with every volume

@@ -62,6 +62,11 @@ _REAL_DATASETS: dict[str, tuple[str, ...]] = {
         "/usr/share/mricron-data/templates/ch2.nii.gz",
         "/usr/lib/mricron/templates/ch2.nii.gz",
     ),
+    "brain-stripped": (
+        "/usr/share/mricron/templates/ch2bet.nii.gz",
+        "/usr/share/mricron-data/templates/ch2bet.nii.gz",
+        "/usr/lib/mricron/templates/ch2bet.nii.gz",
+    ),
 }
 
 #: InVesalius stores axial projects with i towards the patient's left, j towards anterior (it flips DICOM rows)
@@ -161,8 +166,9 @@ def real_dataset_path(name: str) -> Optional[Path]:
     """Return the installed path of a real test volume, or None when its Debian package is not installed.
 
     Args:
-        name: ``"head-ct"`` (InVesalius ``Cranium.inv3``, package ``invesalius-examples``) or ``"brain-mri"``
-            (Colin27 ``ch2.nii.gz``, package ``mricron-data``).
+        name: ``"head-ct"`` (InVesalius ``Cranium.inv3``, package ``invesalius-examples``), ``"brain-mri"``
+            (Colin27 ``ch2.nii.gz``, package ``mricron-data``) or ``"brain-stripped"`` (its skull-stripped
+            ``ch2bet.nii.gz``, same package).
 
     Raises:
         KeyError: unknown name.
@@ -349,58 +355,96 @@ def _read_npy(path: Path, name: str, n_bins: Optional[int]) -> Volume:
     return Volume(np.ascontiguousarray(values), name=name)
 
 
+#: Compressed bytes inflated per read when streaming an ``.inv3``: one pass over the archive in a few long zlib calls,
+#: which release the GIL (the run's background imports proceed meanwhile), where tarfile's default 10 KiB would hand it
+#: back and forth thousands of times.
+_INV3_READ_BYTES = 1 << 22
+
+#: The archive errors that mean a corrupt or truncated ``.inv3``.
+_ARCHIVE_ERRORS = (tarfile.TarError, OSError, EOFError, zlib.error)
+
+
+@dataclass(frozen=True)
+class _Inv3Matrix:
+    """What ``main.plist`` says of the voxels: the archive member holding them, their shape, type and geometry."""
+
+    member: str
+    shape: tuple[int, ...]
+    dtype: np.dtype
+    spacing: tuple[float, ...]
+    directions: np.ndarray
+
+
 def _read_inv3(path: Path, name: str, n_bins: Optional[int]) -> Volume:
-    errors = (tarfile.TarError, OSError, EOFError, zlib.error)
+    """Read an InVesalius project in one streaming pass: ``main.plist`` comes first, then ``matrix.dat``.
+
+    A project whose voxels come before ``main.plist`` in the archive is read in a second pass.
+    """
+    matrix: Optional[_Inv3Matrix] = None
+    for _ in range(2):
+        try:
+            archive = tarfile.open(path, "r|gz", bufsize=_INV3_READ_BYTES)
+        except _ARCHIVE_ERRORS as error:
+            raise cannot_read(path, f"not an InVesalius project (gzip tar expected: {error})") from None
+        try:
+            with archive:
+                for member in archive:
+                    if matrix is None and member.isfile() and member.name.rsplit("/", 1)[-1] == "main.plist":
+                        matrix = _inv3_matrix(path, member.name, _member_bytes(archive, member))
+                    elif matrix is not None and member.isfile() and member.name == matrix.member:
+                        values = _inv3_voxels(path, archive, member, matrix, n_bins)
+                        return Volume(values, matrix.spacing, (0.0, 0.0, 0.0), matrix.directions, name)
+        except _ARCHIVE_ERRORS as error:
+            raise cannot_read(path, f"the archive is corrupt or truncated ({error})") from None
+        if matrix is None:
+            raise cannot_read(path, "no main.plist in the InVesalius project")
+    raise cannot_read(path, f"the project has no {matrix.member.rsplit('/', 1)[-1]}")
+
+
+def _inv3_matrix(path: Path, plist_name: str, text: bytes) -> _Inv3Matrix:
+    """The voxels' description in ``main.plist`` (``plist_name`` locates the data file beside it)."""
     try:
-        archive = tarfile.open(path, "r:gz")
-    except errors as error:
-        raise cannot_read(path, f"not an InVesalius project (gzip tar expected: {error})") from None
-    with archive:
-        try:
-            members = {m.name: m for m in archive.getmembers() if m.isfile()}
-            main_name = next((n for n in members if n.rsplit("/", 1)[-1] == "main.plist"), None)
-            if main_name is None:
-                raise cannot_read(path, "no main.plist in the InVesalius project")
-            main = plistlib.loads(_extract(archive, members[main_name]))
-        except errors as error:
-            raise cannot_read(path, f"the archive is corrupt or truncated ({error})") from None
-        except plistlib.InvalidFileException:
-            raise cannot_read(path, "its main.plist is not a property list") from None
-        try:
-            matrix = main["matrix"]
-            shape = tuple(int(n) for n in matrix["shape"])
-            dtype = np.dtype(str(matrix.get("dtype", "int16"))).newbyteorder("<")
-            spacing = tuple(float(s) for s in main["spacing"])
-            data_name = str(matrix.get("filename", "matrix.dat"))
-        except (KeyError, TypeError, ValueError):
-            raise cannot_read(path, "its main.plist lacks a valid matrix shape, dtype or spacing") from None
-        if len(shape) != 3 or len(spacing) != 3:
-            raise cannot_read(path, f"the project matrix has shape {shape}; a 3-D (z, y, x) matrix is needed")
-        folder = main_name.rsplit("/", 1)[0] + "/" if "/" in main_name else ""
-        member = members.get(folder + data_name)
-        if member is None:
-            raise cannot_read(path, f"the project has no {data_name}")
-        expected = int(np.prod(shape, dtype=np.float64)) * dtype.itemsize
-        if member.size != expected:
-            raise cannot_read(
-                path, f"{data_name} holds {member.size} bytes; shape {shape} of {dtype.name} needs {expected}"
-            )
-        _check_size(path, shape[::-1], 1, dtype, n_bins)
-        try:
-            raw = _extract(archive, member)
-        except errors as error:
-            raise cannot_read(path, f"the archive is corrupt or truncated ({error})") from None
-    values = np.frombuffer(raw, dtype=dtype).reshape(shape).astype(dtype.newbyteorder("="))
+        main = plistlib.loads(text)
+    except (plistlib.InvalidFileException, ValueError):
+        raise cannot_read(path, "its main.plist is not a property list") from None
+    try:
+        matrix = main["matrix"]
+        shape = tuple(int(n) for n in matrix["shape"])
+        dtype = np.dtype(str(matrix.get("dtype", "int16"))).newbyteorder("<")
+        spacing = tuple(float(s) for s in main["spacing"])
+        data_name = str(matrix.get("filename", "matrix.dat"))
+    except (KeyError, TypeError, ValueError):
+        raise cannot_read(path, "its main.plist lacks a valid matrix shape, dtype or spacing") from None
+    if len(shape) != 3 or len(spacing) != 3:
+        raise cannot_read(path, f"the project matrix has shape {shape}; a 3-D (z, y, x) matrix is needed")
+    folder = plist_name.rsplit("/", 1)[0] + "/" if "/" in plist_name else ""
     directions = _INV3_AXIAL_DIRECTIONS if main.get("orientation", 1) in (1, "AXIAL") else np.eye(3)
-    return Volume(values, spacing, (0.0, 0.0, 0.0), directions, name)
+    return _Inv3Matrix(folder + data_name, shape, dtype, spacing, directions)
 
 
-def _extract(archive: tarfile.TarFile, member: tarfile.TarInfo) -> bytes:
+def _inv3_voxels(
+    path: Path, archive: tarfile.TarFile, member: tarfile.TarInfo, matrix: _Inv3Matrix, n_bins: Optional[int]
+) -> np.ndarray:
+    """The voxels of the current member, read straight into their array once their size is accepted."""
+    expected = int(np.prod(matrix.shape, dtype=np.float64)) * matrix.dtype.itemsize
+    if member.size != expected:
+        raise cannot_read(
+            path,
+            f"{member.name.rsplit('/', 1)[-1]} holds {member.size} bytes; shape {matrix.shape} of "
+            f"{matrix.dtype.name} needs {expected}",
+        )
+    _check_size(path, matrix.shape[::-1], 1, matrix.dtype, n_bins)
+    values = np.empty(matrix.shape, dtype=matrix.dtype)
     handle = archive.extractfile(member)
-    if handle is None:
-        raise OSError(f"cannot extract {member.name}")
-    with handle:
-        data = handle.read()
+    if handle is None or handle.readinto(memoryview(values.reshape(-1).view(np.uint8))) != member.size:
+        raise EOFError(f"{member.name} is truncated")
+    return values if values.dtype.isnative else values.astype(values.dtype.newbyteorder("="))
+
+
+def _member_bytes(archive: tarfile.TarFile, member: tarfile.TarInfo) -> bytes:
+    """The bytes of the archive's current member (a small one: main.plist)."""
+    handle = archive.extractfile(member)
+    data = handle.read() if handle is not None else b""
     if len(data) != member.size:
         raise EOFError(f"{member.name} is truncated")
     return data

@@ -2,7 +2,8 @@
 
 The pipeline, one module per step: :mod:`.quantize` (isovalue bins), :mod:`.cells` (unit cells and octree levels),
 :mod:`.similarity` (hierarchical isovalue similarity), :mod:`.clustering` (affinity propagation), :mod:`.classes`
-(ranked, coloured classes), :mod:`.transfer_function` (VTK objects and Slicer files), tied together by
+(ranked classes), :mod:`.tissues` (classes grouped into tissues), :mod:`.look` (default colours and
+opacities), :mod:`.transfer_function` (VTK objects and Slicer files), tied together by
 :func:`design_transfer_function`, whose options are the table in :mod:`.options` and whose errors are in
 :mod:`.errors`. :mod:`.mrml` puts a design into a Slicer scene, :mod:`.pictures` draws the similarity matrix.
 Needs numpy, scikit-learn (at clustering time) and VTK; never Qt or the Slicer application, so it runs headless.
@@ -11,7 +12,7 @@ Needs numpy, scikit-learn (at clustering time) and VTK; never Qt or the Slicer a
 from .cells import octree_levels, unit_cell_intervals
 from .classes import IsovalueClass
 from .clustering import ClusteringResult, cluster_isovalues
-from .design import TransferFunctionDesign, design_transfer_function
+from .design import Tissue, TransferFunctionDesign, design_transfer_function
 from .errors import (
     ClusteringError,
     InsufficientMemoryError,
@@ -37,6 +38,7 @@ __all__ = [
     "IsovalueSimilarity",
     "OptionError",
     "Quantization",
+    "Tissue",
     "TransferFunctionDesign",
     "TransferFunctionFileError",
     "TransferFunctionPoints",

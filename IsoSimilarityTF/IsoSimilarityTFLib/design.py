@@ -13,7 +13,7 @@ from .chunked import SlabTap, is_dask_array, quantize_chunked
 from .classes import IsovalueClass, build_classes, runs
 from .clustering import FALLBACK_DAMPINGS, cluster_isovalues, unconverged_advice
 from .errors import ClusteringError
-from .look import class_mean_values, default_look, detect_kind
+from .look import class_mean_values, default_look, detect_kind, gradient_ramp_top
 from .memory import check_memory
 from .options import DEFAULT_OPTIONS, check_options
 from .quantize import Quantization, quantize
@@ -173,6 +173,7 @@ class TransferFunctionDesign:
         """Group the classes into ``tissues`` non-background tissues (``"auto"``: the intensity model's count,
         ``"all"``: one per class, the thesis), instantly, and give them the default look. Leaves solo mode."""
         n = _tissue_count(tissues, self.hierarchy)
+        self.options["tissues"] = tissues if isinstance(tissues, str) else int(tissues)  # rerunning reproduces it
         background = self.background_class
         groups = self.hierarchy.groups(n) if self.hierarchy.order else []
         if background is not None:
@@ -255,7 +256,7 @@ class TransferFunctionDesign:
             c.color, c.opacity, c.visible = color, opacity, shown
         for t in self.tissues:
             members = [self.classes[c] for c in t.classes]
-            t.color = list(members[0].color)
+            t.color = list(max(members, key=lambda c: c.voxels).color)  # its largest class's, where they differ
             t.opacity = max(c.opacity for c in members)
             t.visible = any(c.visible for c in members)
 
@@ -288,9 +289,22 @@ class TransferFunctionDesign:
         """Scalar opacity unit distance in mm: 1, so opacity is per millimetre whatever the voxel spacing."""
         return UNIT_DISTANCE_MM
 
+    @property
+    def gradient_ramp_top(self) -> Optional[float]:
+        """With option ``gradient_opacity``: the gradient (volume units per mm) from which gradient opacity is 1
+        (see :func:`.look.gradient_ramp_top`, from the shown tissues); None when the option is off."""
+        if self.options.get("gradient_opacity", "off") != "auto":
+            return None
+        values = class_mean_values(self.labels, self.bin_voxels, self.edges, len(self.classes))
+        shown = [t for t in self.tissues if t.visible and not t.background]
+        means = [
+            np.average(values[t.classes], weights=[max(self.classes[c].voxels, 1) for c in t.classes]) for t in shown
+        ]
+        return gradient_ramp_top(means)
+
     def volume_property(self):
         """A new ``vtkVolumeProperty`` showing this design."""
-        return new_volume_property(self.transfer_function(), self.unit_distance)
+        return new_volume_property(self.transfer_function(), self.unit_distance, self.gradient_ramp_top)
 
     def update_volume_property(self, volume_property) -> None:
         """Rewrite the colour and opacity functions of an existing ``vtkVolumeProperty`` in place."""
@@ -438,7 +452,9 @@ def design_transfer_function(
             tissue per class: the thesis' classes) or a number of non-background tissues; :meth:`regroup` changes
             it later without recomputing anything. ``colors``: ``"ramp"`` (one intensity-ordered colour per tissue)
             or ``"distinct"`` (the qualitative palette). ``modality``: ``"CT"``, ``"MR"`` or None to detect the
-            kind of volume from its dtype and value range (see :func:`.look.detect_kind`).
+            kind of volume from its dtype and value range (see :func:`.look.detect_kind`). ``gradient_opacity``:
+            ``"auto"`` fades homogeneous insides by a gradient-opacity ramp (see :func:`.look.gradient_ramp_top`),
+            ``"off"`` (default) leaves it constant.
 
     Raises:
         ValueError: bad volume or option. ClusteringError: affinity propagation gave no usable grouping.
@@ -534,11 +550,8 @@ def design_transfer_function(
             [c.id for c in classes if c.id != background],
             similarity.matrix,
         )
-        kind = detect_kind(
-            np.float64 if isinstance(values, Quantization) else values.dtype if chunked else np.asarray(values).dtype,
-            quantized.value_range,
-            opts["modality"],
-        )
+        # The dtype attribute, never np.asarray: a volume larger than memory must not be loaded for it.
+        kind = detect_kind(np.dtype(getattr(values, "dtype", np.float64)), quantized.value_range, opts["modality"])
     design = TransferFunctionDesign(
         value_range=quantized.value_range,
         n_bins=quantized.n_bins,

@@ -2,16 +2,19 @@
 
 What Slicer's presets do, and why we do it too (the presets are read to learn from, not copied):
 
-* **Colours along one ramp** ordered by intensity, dark red -> tan -> ivory -> white, one colour per tissue placed by
-  its mean value between the lowest shown tissue and the densest real one: the classes of one tissue share it, so
-  neighbouring classes never read as rainbow rings ("wood grain"). The qualitative palette stays available
-  (``colors="distinct"``).
+* **Colours along one ramp** ordered by intensity, dark red -> tan -> ivory -> white, placed by mean value between
+  the lowest shown tissue and the densest real one: one colour per tissue, so neighbouring classes never read as
+  rainbow rings ("wood grain"); on CT, where values are densities, each class at its own mean HU, continuous as in
+  the CT presets. The qualitative palette stays available (``colors="distinct"``).
 * **Opacity per millimetre**: the scalar opacity unit distance is 1 mm whatever the voxel spacing (presets leave
   VTK's default of 1 world unit, a millimetre in Slicer), so a 0.5 mm volume is not twice as hazy.
 * **Opacity by the kind of volume** (:func:`detect_kind`): CT values are Hounsfield units, so opacity follows a fixed
   curve of HU (soft tissue nearly clear, bone opaque, no veil); MRI and other uncalibrated scalars get a flat
   moderate ramp in intensity order that peaks at the main bright tissue (not the brightest one: on a T1 head the
   brightest tissue is scalp fat, which would hide the brain).
+
+Gradient opacity (option ``gradient_opacity="auto"``; ``"off"`` by default) scales opacity by the local gradient: 0
+where the value does not change, 1 from :func:`gradient_ramp_top` up, so homogeneous insides fade and boundaries stay.
 
 Rules that hold for every kind: the background is hidden; a class most of whose voxels touch the background
 (noise in the air, the partial-volume rim) is hidden; the densest real tissue (holding at least ``REAL_SHARE`` of
@@ -28,6 +31,7 @@ from .classes import PALETTE, IsovalueClass
 
 KINDS = ("ct", "mr", "8bit")
 COLOR_SCHEMES = ("ramp", "distinct")
+GRADIENT_OPACITY = ("off", "auto")
 
 # Tissue colour ramp, low to high intensity: dark red, tan, ivory, white (our own anchors, in 0..1).
 RAMP = (
@@ -148,21 +152,30 @@ def default_look(
         shown.add(max(real))
     shown_sorted = sorted(shown)
 
-    # Colours: one per tissue.
+    # Colours: one per tissue (per class on CT, see below).
     tissue_color = {t: list(BACKGROUND_GREY) for t in range(n_tissues)}
+    class_color: dict[int, list[float]] = {}
     if colors == "ramp":
-        # A tissue's place on the ramp is its mean value between the lowest shown tissue's (dark red) and the
-        # densest real tissue's (white), so the colour says how dense it is, as in the presets: on CT the bone
-        # tissues are ivory to white however many soft-tissue tissues lie below them.
+        # A place on the ramp is a mean value between the lowest shown tissue's (dark red) and the densest real
+        # tissue's (white), so the colour says how dense it is, as in the presets. On CT the value is a physical
+        # density (HU) and the presets' colour follows it continuously, so each class takes the colour of its own
+        # mean value: trabecular bone in the soft-tissue tissue is still ivory, cortical bone white. On uncalibrated
+        # data one colour per tissue.
         tissue_value = np.bincount(tissue_of_class, weights=voxels * class_values, minlength=n_tissues) / np.maximum(
             tissue_voxels, 1
         )
         anchors = shown_sorted or foreground
         low = tissue_value[anchors[0]]
         high = tissue_value[max(real)] if real else tissue_value[anchors[-1]]
+
+        def ramp_at(value: float) -> list[float]:
+            place = (value - low) / (high - low) if high > low else 1.0
+            return [float(v) for v in ramp_colors(np.array([place]))[0]]
+
         for t in foreground:
-            place = (tissue_value[t] - low) / (high - low) if high > low else 1.0
-            tissue_color[t] = [float(v) for v in ramp_colors(np.array([place]))[0]]
+            tissue_color[t] = ramp_at(tissue_value[t])
+        if kind == "ct":
+            class_color = {c.id: ramp_at(class_values[c.id]) for c in classes if not c.background}
     else:
         for i, t in enumerate(sorted(foreground, key=lambda t: (-tissue_voxels[t], t))):
             tissue_color[t] = list(PALETTE[i % len(PALETTE)])
@@ -190,7 +203,10 @@ def default_look(
     opacity[is_background] = 0.0
 
     visible = [bool(tissue_of_class[c.id] in shown) and not c.background for c in classes]
-    colors_out = [list(BACKGROUND_GREY) if c.background else tissue_color[tissue_of_class[c.id]] for c in classes]
+    colors_out = [
+        list(BACKGROUND_GREY) if c.background else class_color.get(c.id, tissue_color[tissue_of_class[c.id]])
+        for c in classes
+    ]
     return colors_out, [float(a) for a in opacity], visible
 
 
@@ -209,3 +225,18 @@ def _cap_tiny(opacity: np.ndarray, voxels: np.ndarray, is_background: np.ndarray
         ceiling = opacity[lower[np.argmax(values[lower])]] if lower.size else opacity[real_ids].min()
         capped[c] = min(opacity[c], ceiling)
     return capped
+
+
+def gradient_ramp_top(tissue_values: Sequence[float], boundary_mm: float = 2.0) -> float:
+    """Gradient magnitude (volume units per mm) from which gradient opacity is 1: a typical tissue boundary.
+
+    Args:
+        tissue_values: mean values of the shown tissues, in intensity order (volume units).
+        boundary_mm: width over which a boundary between two tissues climbs (blur and partial volume).
+
+    Returns:
+        The median contrast between neighbouring shown tissues over ``boundary_mm``; 1 with fewer than 2 tissues.
+    """
+    contrasts = np.diff(np.sort(np.asarray(tissue_values, dtype=np.float64)))
+    contrasts = contrasts[contrasts > 0]
+    return float(np.median(contrasts)) / boundary_mm if contrasts.size else 1.0

@@ -32,6 +32,8 @@ PROPERTY_ROLE = "IsoSimilarityTFVolumeProperty"
 LEGACY_DESIGN_ATTRIBUTE = "IsoSimilarityTF.Design"
 LEGACY_VOLUME_ROLE = "IsoSimilarityTFVolume"
 NODE_NAME_SUFFIX = "IsoSimilarityTF"
+#: Name of the segmentation representation the classes are exported as.
+BINARY_LABELMAP = "Binary labelmap"
 
 #: Answers of :func:`outside_change`.
 CHANGE_OTHER_NODE = "other-property-node"  # the volume rendering shows another property node
@@ -246,7 +248,7 @@ def _write(volume_node, design: TransferFunctionDesign, volume_rendering_logic, 
         display_node = _add_display_node(volume_node, volume_rendering_logic, property_node)
         first = True
     if first:
-        configure_volume_property(property_node.GetVolumeProperty(), design.unit_distance)
+        configure_volume_property(property_node.GetVolumeProperty(), design.unit_distance, design.gradient_ramp_top)
     _store(text_node, design)
     update_property_node(property_node, design)
     low, high = volume_node.GetImageData().GetScalarRange()
@@ -309,6 +311,10 @@ def class_label_volume(volume_node, design: TransferFunctionDesign) -> np.ndarra
     return np.asarray(design.labels)[quantized.bins]
 
 
+#: What a segment is in :func:`export_segmentation`.
+SEGMENT_LEVELS = ("class", "tissue")
+
+
 def _exported_classes(design: TransferFunctionDesign, which: str) -> list:
     if which == "shown":
         return [c for c in design.classes if design.is_shown(c.id)]
@@ -323,14 +329,67 @@ def segment_name(isovalue_class) -> str:
     return f"Class {isovalue_class.id + 1} ({ranges})"
 
 
-def export_segmentation(volume_node, design: TransferFunctionDesign, which: str = "shown"):
-    """A new ``vtkMRMLSegmentationNode`` with one segment per class of the design: its name, colour and voxels.
+def tissue_segment_name(tissue) -> str:
+    """Name of the segment of a tissue: its number (from 1, as in the module's tree) and value range(s)."""
+    ranges = ", ".join(f"{low:.6g} to {high:.6g}" for low, high in tissue.value_ranges)
+    return f"{'Background' if tissue.background else f'Tissue {tissue.id + 1}'} ({ranges})"
+
+
+def _segments(design: TransferFunctionDesign, which: str, level: str) -> list:
+    """``(segment id, name, colour, class ids)`` of each segment to export."""
+    classes = _exported_classes(design, which)
+    if level == "class":
+        return [(f"class_{c.id + 1}", segment_name(c), c.color, [c.id]) for c in classes]
+    if level != "tissue":
+        raise ValueError(f"level must be one of {', '.join(SEGMENT_LEVELS)}; got {level!r}")
+    exported = {c.id for c in classes}
+    segments = []
+    for tissue in design.tissues:
+        members = [c for c in tissue.classes if c in exported]
+        if members:
+            segments.append((f"tissue_{tissue.id + 1}", tissue_segment_name(tissue), tissue.color, members))
+    return segments
+
+
+def ensure_segmentation_converters() -> None:
+    """Register Slicer's segmentation converter rules unless they already are.
+
+    A segmentation cannot even hold a binary labelmap without them (``AddSegment: Unable to construct empty
+    representation type 'Binary labelmap'``). In Slicer the Segmentations module registers them when it starts
+    (``vtkSlicerSegmentationsModuleLogic::RegisterNodes``); headless (``slicer-core``) nobody does. Registering them
+    here, as that method does, spares a caller from attaching a Segmentations module logic to the scene only for
+    this, and from detaching it afterwards, which logs "GetSubjectHierarchyNode: Invalid scene given"
+    (``SetMRMLSceneInternal(nullptr)`` asks for the subject hierarchy of no scene).
+    """
+    import slicer
+
+    factory = slicer.vtkSegmentationConverterFactory.GetInstance()
+    probe = factory.ConstructRepresentationObjectByRepresentation(BINARY_LABELMAP)
+    if probe is not None:
+        probe.UnRegister(None)  # created with a reference for the caller: the Python object now owns it
+        return
+    for rule in (
+        slicer.vtkBinaryLabelmapToClosedSurfaceConversionRule,
+        slicer.vtkClosedSurfaceToBinaryLabelmapConversionRule,
+        slicer.vtkClosedSurfaceToFractionalLabelmapConversionRule,
+        slicer.vtkFractionalLabelmapToClosedSurfaceConversionRule,
+    ):
+        factory.RegisterConverterRule(rule())
+
+
+def export_segmentation(volume_node, design: TransferFunctionDesign, which: str = "shown", level: str = "class"):
+    """A new ``vtkMRMLSegmentationNode`` with one segment per class or per tissue of the design: its name, colour
+    and voxels.
 
     A voxel belongs to a class's segment exactly when its value falls into one of the class's isovalue bins (the
     quantization the design was made with). The segmentation has the volume's geometry and parent transform.
 
     Args:
-        which: ``"shown"`` (the classes the transfer function shows) or ``"all"``.
+        which: ``"shown"`` (what the transfer function shows) or ``"all"``.
+        level: ``"class"``: one segment per class; ``"tissue"``: one segment per tissue, holding the voxels of its
+            classes that ``which`` selects (with ``"shown"``: exactly what the 3D view shows of that tissue, a tissue
+            none of whose classes is shown has no segment), in the tissue's colour. The default stays ``"class"``
+            (the command line's ``classes.seg.nrrd``); the module passes the level its tree shows.
     """
     import slicer
     from vtkmodules.util import numpy_support
@@ -340,11 +399,12 @@ def export_segmentation(volume_node, design: TransferFunctionDesign, which: str 
     scene = volume_node.GetScene() if volume_node is not None else None
     if scene is None:
         raise ValueError("the volume is not in a scene (was the scene closed?)")
-    classes = _exported_classes(design, which)
+    ensure_segmentation_converters()
+    segments = _segments(design, which, level)
     class_ids = class_label_volume(volume_node, design)
     label_of_class = np.zeros(len(design.classes), dtype=np.uint16)
-    for number, isovalue_class in enumerate(classes, 1):
-        label_of_class[isovalue_class.id] = number
+    for number, (_, _, _, members) in enumerate(segments, 1):
+        label_of_class[members] = number
     labels = np.ascontiguousarray(label_of_class[class_ids])
 
     labelmap = slicer.vtkOrientedImageData()
@@ -362,12 +422,13 @@ def export_segmentation(volume_node, design: TransferFunctionDesign, which: str 
     segmentation_node.CreateDefaultDisplayNodes()
     segmentation = segmentation_node.GetSegmentation()
     segment_ids = vtkStringArray()
-    for isovalue_class in classes:
-        segment_id = segmentation.AddEmptySegment(
-            f"class_{isovalue_class.id + 1}", segment_name(isovalue_class), [float(c) for c in isovalue_class.color]
-        )
-        segment_ids.InsertNextValue(segment_id)
-    if classes and not slicer.vtkSlicerSegmentationsModuleLogic.ImportLabelmapToSegmentationNode(
+    for segment_id, segment_name_, color, _ in segments:
+        color = [float(c) for c in color]
+        added = segmentation.AddEmptySegment(segment_id, segment_name_, color)
+        # AddEmptySegment takes grey (0.5, 0.5, 0.5), vtkSegment's "no colour", for a request to pick one.
+        segmentation.GetSegment(added).SetColor(*color)
+        segment_ids.InsertNextValue(added)
+    if segments and not slicer.vtkSlicerSegmentationsModuleLogic.ImportLabelmapToSegmentationNode(
         labelmap, segmentation_node, segment_ids
     ):
         scene.RemoveNode(segmentation_node)
@@ -407,7 +468,7 @@ def add_preset(design: TransferFunctionDesign, volume_rendering_logic, name: str
     preset = presets.CreateNodeByClass("vtkMRMLVolumePropertyNode")
     preset.UnRegister(None)  # created with a reference for the caller: the Python object now owns it
     preset.SetName(name.strip())
-    configure_volume_property(preset.GetVolumeProperty(), design.unit_distance)
+    configure_volume_property(preset.GetVolumeProperty(), design.unit_distance, design.gradient_ramp_top)
     design.update_volume_property(preset.GetVolumeProperty())
     preset.SetEffectiveRange(*design.value_range)
     added = volume_rendering_logic.AddPreset(preset, _icon_image(transfer_function_icon(design)))

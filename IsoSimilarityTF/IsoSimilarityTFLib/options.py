@@ -14,7 +14,7 @@ from typing import Any, Optional
 from .classes import BACKGROUND_RULES
 from .clustering import PREFERENCES, UNCONVERGED_RULES
 from .errors import OptionError
-from .look import COLOR_SCHEMES, KINDS
+from .look import COLOR_SCHEMES, GRADIENT_OPACITY, KINDS
 from .quantize import MAX_BINS
 from .similarity import CROSSINGS, NORMALIZATIONS
 
@@ -124,11 +124,14 @@ OPTIONS: dict[str, Option] = {
         Option("unconverged", "raise-damping", "choice", "what to do when affinity propagation does not converge",
                "--unconverged", choices=UNCONVERGED_RULES),
         Option("tissues", "auto", "choice-or-int", "tissues the classes are grouped into: auto, all (one per class, "
-               "the thesis) or a count", "--tissues", choices=("auto", "all"), minimum=1, metavar="auto|all|N"),
+               "the thesis) or a count", "--tissues", choices=("auto", "all"), minimum=1, maximum=MAX_BINS,
+               metavar="auto|all|N"),
         Option("colors", "ramp", "choice", "tissue colours: an intensity-ordered ramp (dark red, tan, ivory, white) "
                "or a distinct qualitative palette", "--colors", choices=COLOR_SCHEMES),
         Option("modality", None, "choice", "kind of volume, which sets the opacity curve", "--modality",
                choices=KINDS, none_means="detected from the data type and value range"),
+        Option("gradient_opacity", "off", "choice", "gradient opacity: off (constant, as Slicer's presets) or auto "
+               "(homogeneous insides fade, boundaries stay)", "--gradient-opacity", choices=GRADIENT_OPACITY),
     )
 }  # fmt: skip
 

@@ -17,6 +17,7 @@ import numpy as np
 from . import mrml
 from .classes import build_classes
 from .design import STAGES, TransferFunctionDesign
+from .session import AUTO_DETAIL, CLASS, TISSUE
 from .tissues import tissue_hierarchy
 from .transfer_function import read_vp, read_vp_json
 
@@ -206,6 +207,85 @@ def check_segments_and_preset(new_session, add_volume: AddVolume) -> None:
     session.volume_rendering_logic().RemovePreset(preset)
 
 
+def check_tissues(new_session, add_volume: AddVolume) -> None:
+    """The tree of tissues and classes: Detail regroups instantly, edits and solo work on both levels, everything is
+    stored in the scene and restored, the segments follow the tree's level."""
+    volume = add_volume(nested_volume(), SPACING, "Nested")
+    session = new_session()
+    design = hand_made_design()  # one tissue per class: classes 1..3 besides the background class 0
+    property_node = session.apply(volume, design)
+    _case.assertEqual(session.detail_range(), (1, 3))
+    _case.assertEqual(session.detail(), 3)
+    rows = session.rows()
+    _case.assertEqual([(r.level, r.classes, r.children) for r in rows], [(TISSUE, (i,), ()) for i in range(4)])
+    _case.assertTrue(rows[0].background and not rows[0].shown)
+    _case.assertEqual(session.level(), CLASS)
+
+    # Detail 1: one tissue holding classes 1 to 3, shown as a tissue row with three class rows.
+    session.regroup(1)
+    _case.assertIs(session.design, design)
+    rows = session.rows()
+    _case.assertEqual(len(rows), 2)
+    tissue = rows[1]
+    _case.assertEqual((tissue.level, tissue.classes), (TISSUE, (1, 2, 3)))
+    _case.assertEqual([(c.level, c.id) for c in tissue.children], [(CLASS, 1), (CLASS, 2), (CLASS, 3)])
+    _case.assertEqual(session.detail(), 1)
+    _case.assertEqual(session.level(), TISSUE)
+    _case.assertEqual(mrml.design_of_volume(volume).n_tissues, 1)  # stored at once
+
+    # A tissue edit reaches every class of the tissue; a class edit only its class.
+    session.edit(TISSUE, tissue.id, opacity=0.5, color=(0.0, 1.0, 0.0))
+    for value in (160.0, 400.0, 560.0):  # classes 1, 2 and 3 (bins 8-23, 24-47, 48-63 of 10 units each)
+        _case.assertAlmostEqual(opacity_at(property_node, value), 0.5, places=6)
+    _case.assertEqual({r.color for r in session.rows()[1].children}, {(0.0, 1.0, 0.0)})
+    session.edit(CLASS, 3, opacity=0.25)
+    _case.assertAlmostEqual(opacity_at(property_node, 560.0), 0.25, places=6)
+    _case.assertAlmostEqual(opacity_at(property_node, 160.0), 0.5, places=6)
+    session.edit(CLASS, 2, visible=False)
+    _case.assertIsNone(session.rows()[1].visible)  # partly visible
+    _case.assertEqual(opacity_at(property_node, 400.0), 0.0)
+    session.edit(TISSUE, tissue.id, visible=True)
+    _case.assertTrue(session.rows()[1].visible)
+
+    # Solo on both levels.
+    session.solo(CLASS, 2)
+    _case.assertEqual([c.shown for c in session.rows()[1].children], [False, True, False])
+    _case.assertEqual(opacity_at(property_node, 160.0), 0.0)
+    _case.assertAlmostEqual(opacity_at(property_node, 400.0), 0.5, places=6)
+    session.solo(TISSUE, tissue.id)
+    _case.assertTrue(session.rows()[1].solo)
+    _case.assertFalse(any(c.solo for c in session.rows()[1].children))
+    _case.assertGreater(opacity_at(property_node, 160.0), 0.0)
+    _case.assertFalse(mrml.modified_outside(volume))
+
+    # The grouping, the edits and solo are stored in the scene and restored by another session.
+    other = new_session()
+    other.restore(volume)
+    _case.assertEqual(other.rows(), session.rows())
+    _case.assertEqual(other.detail(), 1)
+
+    # Segments at the tree's level: one per shown tissue, with the voxels of its shown classes.
+    session.solo(TISSUE, None)
+    segmentation = session.export_segmentation().GetSegmentation()
+    shown = [r for r in session.rows() if r.shown]
+    _case.assertEqual(segmentation.GetNumberOfSegments(), len(shown))
+    _case.assertEqual(segmentation.GetNthSegment(0).GetName(), mrml.tissue_segment_name(design.tissues[1]))
+    _case.assertEqual(
+        list(np.round(segmentation.GetNthSegment(0).GetColor(), 6)), list(np.round(design.tissues[1].color, 6))
+    )
+    classes = session.export_segmentation(level=CLASS).GetSegmentation()
+    _case.assertEqual(classes.GetNumberOfSegments(), sum(design.is_shown(c.id) for c in design.classes))
+
+    # Back to the automatic count, and past the top (one tissue per class).
+    session.regroup(AUTO_DETAIL)
+    _case.assertEqual(session.detail(), AUTO_DETAIL)
+    _case.assertEqual(design.n_tissues, design.hierarchy.auto)
+    _case.assertEqual(mrml.design_of_volume(volume).options["tissues"], "auto")
+    session.regroup(99)
+    _case.assertEqual((design.n_tissues, session.detail()), (3, 3))
+    _case.assertEqual(new_session().restore(volume).options["tissues"], "all")
+
+
 def check_run(new_session, add_volume: AddVolume) -> None:
     """A full run (scikit-learn needed), in this process and in a child process: the same design."""
     volume = add_volume(nested_volume(), SPACING, "Nested")
@@ -232,6 +312,15 @@ def check_run(new_session, add_volume: AddVolume) -> None:
     _case.assertFalse(os.path.exists(job.folder))
     _case.assertEqual(again.to_dict()["classes"], design.to_dict()["classes"])
     _case.assertEqual(reports[-1][0], STAGES[-1])
+    # The Detail setting (the panel's "tissues"): a count past the volume's classes is one tissue per class.
+    grouped = session.run(volume, {**options, "tissues": 1})
+    _case.assertEqual((grouped.n_tissues, session.detail()), (1, 1))
+    job = session.start(volume, {**options, "tissues": 999})
+    job.wait(timeout=300)
+    every = session.finish(volume, job)
+    _case.assertEqual(every.options["tissues"], "all")
+    _case.assertEqual(every.n_tissues, every.hierarchy.max_tissues)
+    _case.assertEqual(mrml.design_of_volume(volume).options["tissues"], "all")
 
 
 class _Cancelled(Exception):
@@ -268,6 +357,7 @@ CHECKS = {
     "restore": (check_restore, False),
     "outside_changes": (check_outside_changes, False),
     "segments_and_preset": (check_segments_and_preset, False),
+    "tissues": (check_tissues, False),
     "run": (check_run, True),
     "cancel": (check_cancel, False),
 }

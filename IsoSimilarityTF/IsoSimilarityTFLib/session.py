@@ -6,15 +6,24 @@ it runs on a ``slicer-core`` scene, so the module's self-test checks (:mod:`.sel
 """
 
 import logging
-from typing import Optional
+from dataclasses import dataclass
+from typing import Optional, Union
 
 from . import mrml
 from .cells import octree_levels
 from .design import TransferFunctionDesign, design_transfer_function
+from .options import check_options
 from .worker import DesignProcess
 
 # Similarity matrices kept for volumes designed in this session (4096 bins: 128 MB each).
 MAX_KEPT_SIMILARITIES = 4
+
+#: Levels of the panel's tree: a tissue row, a class row (inside its tissue).
+TISSUE, CLASS = "tissue", "class"
+LEVELS = (TISSUE, CLASS)
+
+#: The "Detail" setting (the parameter node's ``tissues``) that stands for the automatic number of tissues.
+AUTO_DETAIL = 0
 
 
 def volume_values(volume_node):
@@ -34,6 +43,182 @@ def fit_levels(shape, options: dict) -> tuple:
             options["levels"] = None
             return options, available
     return options, None
+
+
+def grouping_of_detail(detail: int, max_tissues: int) -> Union[str, int]:
+    """The ``tissues`` grouping (``"auto"``, ``"all"`` or a count) of a Detail setting.
+
+    The panel's Detail is an integer: :data:`AUTO_DETAIL` (0) is the automatic count, ``n >= 1`` is ``n`` tissues,
+    and a count at or above the design's number of non-background classes is one tissue per class (``"all"``, the
+    thesis). So a count saved with the scene still means something on a volume with fewer classes.
+    """
+    if detail == AUTO_DETAIL:
+        return "auto"
+    if detail < 0:
+        raise ValueError(f"the detail must be {AUTO_DETAIL} (automatic) or a number of tissues; got {detail}")
+    return "all" if detail >= max_tissues else int(detail)
+
+
+def detail_of_design(design: TransferFunctionDesign) -> int:
+    """The Detail setting that gives the design's current grouping: :data:`AUTO_DETAIL` when the automatic count was
+    asked for (and is what the design shows), else its number of tissues."""
+    if design.options.get("tissues", "auto") == "auto" and design.n_tissues == design.hierarchy.auto:
+        return AUTO_DETAIL
+    return design.n_tissues
+
+
+def regroup_design(design: TransferFunctionDesign, detail: int) -> None:
+    """Group the design's classes as a Detail setting says (instant: nothing is computed again) and record the
+    grouping in the design's options, so that the scene keeps what the user chose (``"auto"``, a count, ``"all"``).
+    The tissues get their default look again."""
+    grouping = grouping_of_detail(detail, design.hierarchy.max_tissues)
+    design.regroup(grouping)
+    design.options["tissues"] = grouping
+
+
+def _engine_grouping(options: dict) -> tuple:
+    """``(options for the engine, Detail to regroup to afterwards or None)``.
+
+    A number of tissues is known to fit only once the classes are known: the engine groups automatically and the
+    session regroups the finished design (instant), one tissue per class when the volume has fewer classes.
+    """
+    options = dict(options)
+    tissues = options.get("tissues")
+    if isinstance(tissues, int) and not isinstance(tissues, bool):
+        options["tissues"] = "auto"
+        return options, tissues
+    return options, None
+
+
+@dataclass(frozen=True)
+class Row:
+    """One row of the panel's tree: a tissue, or one of its classes. Qt-free: the panel only draws it.
+
+    Attributes:
+        level: :data:`TISSUE` or :data:`CLASS`.
+        id: the tissue's or the class's id (shown from 1).
+        color: ``(r, g, b)`` in 0..1.
+        opacity: opacity per mm when shown.
+        visible: the visible flag; for a tissue, None when some of its classes are visible and some not.
+        solo: whether this row is shown alone.
+        shown: whether it appears in the transfer function (for a tissue: any of its classes).
+        voxels, fraction: voxels in the row, and their share of the volume.
+        value_ranges: ``[low, high]`` runs in volume units.
+        background: whether the row is the background.
+        classes: the class ids (a class row: its own id).
+        children: a tissue's class rows, when it has more than one class (else empty).
+    """
+
+    level: str
+    id: int
+    color: tuple
+    opacity: float
+    visible: Optional[bool]
+    solo: bool
+    shown: bool
+    voxels: int
+    fraction: float
+    value_ranges: tuple
+    background: bool
+    classes: tuple
+    children: tuple = ()
+
+
+def design_rows(design: TransferFunctionDesign) -> list:
+    """The tissue rows of a design (each with its class rows), in intensity order."""
+    total = max(int(sum(c.voxels for c in design.classes)), 1)
+    rows = []
+    for tissue in design.tissues:
+        class_rows = tuple(
+            Row(
+                level=CLASS,
+                id=c.id,
+                color=tuple(c.color),
+                opacity=c.opacity,
+                visible=c.visible,
+                solo=design.solo_class == c.id,
+                shown=design.is_shown(c.id),
+                voxels=c.voxels,
+                fraction=c.fraction,
+                value_ranges=tuple(tuple(r) for r in c.value_ranges),
+                background=c.background,
+                classes=(c.id,),
+            )
+            for c in (design.classes[i] for i in tissue.classes)
+        )
+        flags = {row.visible for row in class_rows}
+        rows.append(
+            Row(
+                level=TISSUE,
+                id=tissue.id,
+                color=tuple(tissue.color),
+                opacity=tissue.opacity,
+                visible=flags.pop() if len(flags) == 1 else None,
+                solo=design.solo_tissue_id == tissue.id,
+                shown=any(row.shown for row in class_rows),
+                voxels=tissue.voxels,
+                fraction=tissue.voxels / total,
+                value_ranges=tuple(tuple(r) for r in tissue.value_ranges),
+                background=tissue.background,
+                classes=tuple(tissue.classes),
+                children=class_rows if len(class_rows) > 1 else (),
+            )
+        )
+    return rows
+
+
+class Cancelled(Exception):
+    """Raised by a progress callback to stop a design computed in this process (see :meth:`DesignSession.run`)."""
+
+
+# Where an Apply runs -------------------------------------------------------------------------------------------------
+# In Slicer, a design in a child process (:mod:`.worker`) costs the start of PythonSlicer and the imports of numpy and
+# scikit-learn, about 3 s, on every Apply; in Slicer's own process the design runs on the main thread, which repaints
+# and honours Cancel only between progress reports. So a design runs in-process when it is expected to take less than
+# about a second, and in a child process otherwise. The cost model (seconds), measured with benchmarks/apply_cost.py
+# on a 2-core Xeon (numpy 2, scikit-learn 1.7; see docs/apply-cost.md):
+#: Quantization, similarity and classes: one pass each over the voxels (5.4 ns of them the similarity's cells).
+COST_PER_VOXEL_S = 12e-9
+#: Per octree level, the cumulative sums over the n_bins x n_bins overlap table.
+COST_PER_LEVEL_BIN2_S = 40e-9
+#: One affinity propagation iteration over the n_bins x n_bins similarity (scikit-learn).
+COST_PER_ITERATION_BIN2_S = 7e-9
+#: Tissues (the intensity model fitted to the histogram, 1 to 8 tissues) and showing the design.
+COST_FIXED_S = 0.25
+COST_TISSUES_PER_BIN2_S = 0.2e-6
+#: Expected seconds under which a design runs in Slicer's process.
+IN_PROCESS_BUDGET_S = 1.0
+
+
+def estimate_seconds(shape, options: Optional[dict] = None) -> float:
+    """Expected seconds to design a volume of ``shape`` (voxels per axis) with ``options``, in this process.
+
+    Affinity propagation is counted as running to its iteration limit once (it usually converges sooner: 40 to 360
+    iterations were measured at 128 to 1024 bins; a retry with more damping, ``unconverged="raise-damping"``, can
+    add to it).
+    """
+    opts = check_options({k: v for k, v in (options or {}).items() if k != "tissues"})
+    n_bins = opts["n_bins"]
+    voxels = 1
+    for n in shape:
+        voxels *= int(n)
+    cells = tuple(max(int(n) - 1, 1) for n in shape)
+    levels = len(octree_levels(cells))
+    if opts["levels"]:
+        levels = min(levels, opts["levels"])
+    bins2 = float(n_bins) ** 2
+    return (
+        COST_FIXED_S
+        + voxels * COST_PER_VOXEL_S
+        + levels * bins2 * COST_PER_LEVEL_BIN2_S
+        + opts["max_iter"] * bins2 * COST_PER_ITERATION_BIN2_S
+        + bins2 * COST_TISSUES_PER_BIN2_S
+    )
+
+
+def runs_in_process(shape, options: Optional[dict] = None, budget_s: float = IN_PROCESS_BUDGET_S) -> bool:
+    """Whether a design is cheap enough to compute in Slicer's own process (see :func:`estimate_seconds`)."""
+    return estimate_seconds(shape, options) <= budget_s
 
 
 class DesignSession:
@@ -61,18 +246,34 @@ class DesignSession:
 
     # Designing -----------------------------------------------------------------------------------------------------
     def run(self, volume_node, options: Optional[dict] = None, progress=None) -> TransferFunctionDesign:
-        """Design in this process and show the design; raising from ``progress`` cancels (nothing changes then)."""
+        """Design in this process and show the design; raising from ``progress`` cancels (nothing changes then).
+
+        ``options["tissues"]`` may be a Detail setting (see :func:`grouping_of_detail`)."""
         values, spacing = volume_values(volume_node)
         options, _ = fit_levels(values.shape, options or {})
+        options, detail = _engine_grouping(options)
         design = design_transfer_function(values, spacing, progress=progress, **options)
+        if detail is not None:
+            regroup_design(design, detail)
         self.apply(volume_node, design)
         return design
+
+    def runs_in_process(self, volume_node, options: Optional[dict] = None) -> bool:
+        """Whether :meth:`run` (in this process) should design the volume, rather than :meth:`start` (a child
+        process): see :func:`runs_in_process`."""
+        image = volume_node.GetImageData() if volume_node is not None else None
+        if image is None:
+            return True  # nothing to compute: run() reports the error at once
+        return runs_in_process(tuple(reversed(image.GetDimensions())), options)
 
     def start(self, volume_node, options: Optional[dict] = None) -> DesignProcess:
         """Start designing in a child process (see :mod:`.worker`); give the job to :meth:`finish` when it ends."""
         values, spacing = volume_values(volume_node)
         options, _ = fit_levels(values.shape, options or {})
-        return DesignProcess(values, spacing, options, python=self.python_executable())
+        options, detail = _engine_grouping(options)
+        job = DesignProcess(values, spacing, options, python=self.python_executable())
+        job.detail = detail  # what finish() regroups the design to (None: the engine's grouping)
+        return job
 
     def finish(self, volume_node, job: DesignProcess) -> TransferFunctionDesign:
         """Show the design a finished job made (its errors are raised); the job's files are removed."""
@@ -80,6 +281,8 @@ class DesignSession:
             design = job.result()
         finally:
             job.close()
+        if getattr(job, "detail", None) is not None:
+            regroup_design(design, job.detail)
         self.apply(volume_node, design)
         return design
 
@@ -153,6 +356,64 @@ class DesignSession:
         self.current_design().solo(class_id)
         self.update()
 
+    # The panel's tree: tissues and their classes ----------------------------------------------------------------
+    def rows(self) -> list:
+        """The rows of the panel's tree for the current design (see :class:`Row`); empty without a design."""
+        return design_rows(self.design) if self.design is not None else []
+
+    def edit(
+        self,
+        level: str,
+        item_id: int,
+        *,
+        color=None,
+        opacity: Optional[float] = None,
+        visible: Optional[bool] = None,
+    ) -> None:
+        """Change a tissue's (and so all its classes') or one class's colour, opacity or visibility."""
+        design = self.current_design()
+        if level == TISSUE:
+            design.set_tissue(item_id, color=color, opacity=opacity, visible=visible)
+        elif level == CLASS:
+            design.set_class(item_id, color=color, opacity=opacity, visible=visible)
+        else:
+            raise ValueError(f"level must be one of {LEVELS}; got {level!r}")
+        self.update()
+
+    def solo(self, level: str, item_id: Optional[int]) -> None:
+        """Show only this tissue or class (``item_id`` None: leave solo mode)."""
+        design = self.current_design()
+        if level == TISSUE:
+            design.solo_tissue(item_id)
+        elif level == CLASS:
+            design.solo(item_id)
+        else:
+            raise ValueError(f"level must be one of {LEVELS}; got {level!r}")
+        self.update()
+
+    def detail_range(self) -> tuple:
+        """``(1, n)``: the Detail settings the current design offers besides :data:`AUTO_DETAIL`; ``n`` (one tissue per
+        non-background class) is the thesis. ``(1, 1)`` without a design."""
+        if self.design is None:
+            return 1, 1
+        return 1, max(self.design.hierarchy.max_tissues, 1)
+
+    def detail(self) -> Optional[int]:
+        """The Detail setting of the current design's grouping (None without a design)."""
+        return detail_of_design(self.design) if self.design is not None else None
+
+    def regroup(self, detail: int) -> None:
+        """Regroup the current design (:data:`AUTO_DETAIL`: the automatic count; n: n tissues, one per class at the
+        top of :meth:`detail_range`), instantly; the tissues get their default look; stored in the scene."""
+        regroup_design(self.current_design(), detail)
+        self.update()
+
+    def level(self) -> str:
+        """What the panel hands over (segments): :data:`TISSUE` when the design groups classes into tissues,
+        :data:`CLASS` when each tissue is one class (the thesis' classes, named as such)."""
+        design = self.current_design()
+        return TISSUE if any(len(t.classes) > 1 for t in design.tissues) else CLASS
+
     def show_all_classes(self) -> None:
         self.current_design().show_all()
         self.update()
@@ -182,11 +443,13 @@ class DesignSession:
         logging.info(f"IsoSimilarityTF: transfer function written to {path}")
         return path
 
-    def export_segmentation(self, which: str = "shown"):
-        """A new segmentation node with one segment per shown class of the current design."""
+    def export_segmentation(self, which: str = "shown", level: Optional[str] = None):
+        """A new segmentation node with one segment per shown (or every) tissue or class of the current design;
+        ``level`` None: :meth:`level`."""
         if self.volume_node is None or self.volume_node.GetScene() is None:
             raise RuntimeError("The volume of this design is no longer in the scene.")
-        return mrml.export_segmentation(self.volume_node, self.current_design(), which=which)
+        level = self.level() if level is None else level
+        return mrml.export_segmentation(self.volume_node, self.current_design(), which=which, level=level)
 
     def add_preset(self, name: str):
         """Add the current design to the Volume Rendering preset menu; returns the preset node."""

@@ -99,17 +99,25 @@ def fill_volume_property(volume_property, points: TransferFunctionPoints) -> Non
     volume_property.GetScalarOpacity().DeepCopy(opacity_function)
 
 
-def configure_volume_property(volume_property, unit_distance: float = 1.0) -> None:
-    """Shading, lighting and interpolation of our transfer functions, and a constant gradient opacity.
+def configure_volume_property(
+    volume_property, unit_distance: float = 1.0, gradient_ramp_top: Optional[float] = None
+) -> None:
+    """Shading, lighting and interpolation of our transfer functions, and the gradient opacity.
 
     Args:
         unit_distance: scalar opacity unit distance in mm (1: opacity per millimetre, as in Slicer's presets).
+        gradient_ramp_top: None for a constant gradient opacity of 1 (off, as in the presets); else the gradient
+            magnitude (volume units per mm) from which it is 1, rising linearly from 0 at no gradient.
     """
     from vtkmodules.vtkCommonDataModel import vtkPiecewiseFunction
 
     gradient = vtkPiecewiseFunction()
-    gradient.AddPoint(0.0, 1.0)
-    gradient.AddPoint(255.0, 1.0)
+    if gradient_ramp_top is None:
+        gradient.AddPoint(0.0, 1.0)
+        gradient.AddPoint(255.0, 1.0)
+    else:
+        gradient.AddPoint(0.0, 0.0)
+        gradient.AddPoint(float(gradient_ramp_top), 1.0)
     volume_property.GetGradientOpacity().DeepCopy(gradient)
     volume_property.SetInterpolationTypeToLinear()
     volume_property.ShadeOn()
@@ -120,11 +128,13 @@ def configure_volume_property(volume_property, unit_distance: float = 1.0) -> No
     volume_property.SetScalarOpacityUnitDistance(unit_distance)
 
 
-def new_volume_property(points: TransferFunctionPoints, unit_distance: float = 1.0):
+def new_volume_property(
+    points: TransferFunctionPoints, unit_distance: float = 1.0, gradient_ramp_top: Optional[float] = None
+):
     """A new shaded ``vtkVolumeProperty`` with linear interpolation showing ``points`` (see
     :func:`configure_volume_property`)."""
     volume_property = _empty_volume_property()
-    configure_volume_property(volume_property, unit_distance)
+    configure_volume_property(volume_property, unit_distance, gradient_ramp_top)
     fill_volume_property(volume_property, points)
     return volume_property
 

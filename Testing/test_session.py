@@ -1,0 +1,103 @@
+"""The Qt-free parts of the module's panel (IsoSimilarityTFLib.session): the Detail setting, the tissue rows, and
+where an Apply runs (in Slicer's process or a child process).
+Their MRML side (edits, solo, storage in the scene, segments) is the self-test check ``tissues``, run on real MRML
+in test_module_selftest.py."""
+
+import pytest
+
+from IsoSimilarityTFLib import OptionError
+from IsoSimilarityTFLib.selftest import hand_made_design
+from IsoSimilarityTFLib.session import (
+    AUTO_DETAIL,
+    CLASS,
+    TISSUE,
+    DesignSession,
+    _engine_grouping,
+    design_rows,
+    detail_of_design,
+    estimate_seconds,
+    grouping_of_detail,
+    regroup_design,
+    runs_in_process,
+)
+
+
+def test_detail_settings_map_to_groupings():
+    assert grouping_of_detail(AUTO_DETAIL, 5) == "auto"
+    assert grouping_of_detail(1, 5) == 1
+    assert grouping_of_detail(4, 5) == 4
+    assert grouping_of_detail(5, 5) == "all"
+    assert grouping_of_detail(40, 5) == "all"  # a count saved for a volume with more classes
+    with pytest.raises(ValueError):
+        grouping_of_detail(-1, 5)
+
+
+def test_the_engine_groups_automatically_and_the_session_regroups_a_count():
+    assert _engine_grouping({"n_bins": 64, "tissues": 3}) == ({"n_bins": 64, "tissues": "auto"}, 3)
+    assert _engine_grouping({"tissues": "all"}) == ({"tissues": "all"}, None)
+    assert _engine_grouping({}) == ({}, None)
+
+
+def test_regroup_records_the_choice_and_detail_reads_it_back():
+    design = hand_made_design()
+    assert detail_of_design(design) == 3  # made with one tissue per class
+    regroup_design(design, 1)
+    assert (design.n_tissues, design.options["tissues"], detail_of_design(design)) == (1, 1, 1)
+    regroup_design(design, AUTO_DETAIL)
+    assert design.options["tissues"] == "auto" and detail_of_design(design) == AUTO_DETAIL
+    assert design.n_tissues == design.hierarchy.auto
+    regroup_design(design, 7)
+    assert design.options["tissues"] == "all" and detail_of_design(design) == 3
+
+
+def test_rows_hold_tissues_and_their_classes():
+    design = hand_made_design()
+    regroup_design(design, 1)
+    rows = design_rows(design)
+    assert [r.level for r in rows] == [TISSUE, TISSUE]
+    background, tissue = rows
+    assert background.background and background.children == () and not background.shown
+    assert [c.level for c in tissue.children] == [CLASS] * 3
+    assert tissue.voxels == sum(c.voxels for c in tissue.children)
+    assert sum(r.fraction for r in rows) == pytest.approx(1.0)
+    design.set_class(2, visible=False)
+    assert design_rows(design)[1].visible is None
+    design.solo(2)
+    rows = design_rows(design)
+    assert [c.solo for c in rows[1].children] == [False, True, False] and not rows[1].solo
+    assert [c.shown for c in rows[1].children] == [False, True, False] and rows[1].shown
+
+
+# Where an Apply runs -------------------------------------------------------------------------------------------------
+def test_small_designs_run_in_process_and_large_ones_in_a_child_process():
+    # The defaults (256 bins, 200 iterations) on usual volumes: in Slicer's process, no 3 s process start.
+    for shape in [(64, 64, 64), (128, 128, 128), (256, 256, 256), (181, 217, 181), (108, 256, 256)]:
+        assert runs_in_process(shape, {}), shape
+    # A big CT, many bins (affinity propagation grows with bins squared), or long clustering: in a child process.
+    assert not runs_in_process((400, 512, 512), {})
+    assert not runs_in_process((64, 64, 64), {"n_bins": 1024})
+    assert not runs_in_process((64, 64, 64), {"n_bins": 256, "max_iter": 5000})
+    assert runs_in_process((128, 128, 128), {"n_bins": 512})
+
+
+def test_the_estimate_grows_with_voxels_bins_levels_and_iterations():
+    base = estimate_seconds((128, 128, 128), {})
+    assert estimate_seconds((256, 256, 256), {}) > base
+    assert estimate_seconds((128, 128, 128), {"n_bins": 512}) > base
+    assert estimate_seconds((128, 128, 128), {"levels": 2}) < base
+    assert estimate_seconds((128, 128, 128), {"max_iter": 400}) > base
+    assert estimate_seconds((128, 128, 128), {"tissues": 3, "colors": "distinct"}) == base  # look options: free
+    # Measured (benchmarks/apply_cost.py): 128^3 at 256 bins about 0.4 s, 64^3 at 1024 bins about 2 s.
+    assert 0.2 < base < 1.0
+    assert 1.0 < estimate_seconds((64, 64, 64), {"n_bins": 1024}) < 4.0
+    with pytest.raises(OptionError):
+        estimate_seconds((64, 64, 64), {"n_bins": 1})
+
+
+def test_the_session_decides_from_the_volume_node(slicer_app):
+    import numpy as np
+
+    session = DesignSession(slicer_app.volume_rendering_logic)
+    small = slicer_app.add_volume(np.zeros((8, 9, 10), dtype=np.float32), name="small")
+    assert session.runs_in_process(small, {})
+    assert not session.runs_in_process(small, {"n_bins": 4096})
