@@ -88,7 +88,8 @@ def test_bad_dask_volumes_are_refused_like_arrays():
 
 
 def test_a_dask_volume_needs_memory_independent_of_its_size(monkeypatch):
-    """Streamed, no array grows with the voxels: the octree levels are counted row by row, the bins never held whole."""
+    """Streamed, no array grows with the voxels (the octree levels are counted row by row, the bins never held whole):
+    what counts is the rows of chunks held at once."""
     shape = (2048, 2048, 3200)
     in_memory, streamed = memory.design_memory_bytes(shape, 256), memory.design_memory_bytes(shape, 256, True)
     assert in_memory - streamed == 2048 * 2048 * 3200
@@ -107,6 +108,13 @@ def test_a_dask_volume_needs_memory_independent_of_its_size(monkeypatch):
     monkeypatch.setattr(memory, "available_memory_bytes", lambda: streamed - 1)
     with pytest.raises(InsufficientMemoryError, match="crop or downsample"):
         design_transfer_function(volume, progress=stop_at_start)
+    # The rows of chunks held at once count too: thin rows fit where thick ones do not.
+    thin_row = 8 * 2048 * 3200 * (2 + 1)
+    monkeypatch.setattr(memory, "available_memory_bytes", lambda: streamed + 3 * thin_row)
+    with pytest.raises(Started):
+        design_transfer_function(volume.rechunk((8, 2048, 3200)), progress=stop_at_start)
+    with pytest.raises(InsufficientMemoryError):
+        design_transfer_function(volume.rechunk((64, 2048, 3200)), progress=stop_at_start)
 
 
 @pytest.mark.parametrize("shape", [(37, 5, 9), (2, 33, 17), (65, 3, 2), (19, 19, 19)])

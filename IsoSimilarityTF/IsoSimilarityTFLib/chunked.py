@@ -28,6 +28,12 @@ def is_dask_array(values: object) -> bool:
     return any(cls.__module__.startswith("dask.") and cls.__name__ == "Array" for cls in type(values).__mro__)
 
 
+def chunk_row_bytes(volume, n_bins: int) -> int:
+    """Bytes of the thickest row of chunks of a dask volume along axis 0: its source values and their bins."""
+    plane_voxels = int(np.prod(volume.shape[1:], dtype=np.int64))
+    return max(volume.chunks[0]) * plane_voxels * (volume.dtype.itemsize + bins_dtype(n_bins).itemsize)
+
+
 def voxel_slabs(volume, overlap: bool = True) -> Iterator[tuple[int, np.ndarray]]:
     """Consecutive slabs of a dask volume along axis 0, every chunk computed once.
 

@@ -9,7 +9,7 @@ from typing import Callable, Optional, Union
 
 import numpy as np
 
-from .chunked import SlabTap, is_dask_array, quantize_chunked
+from .chunked import SlabTap, chunk_row_bytes, is_dask_array, quantize_chunked
 from .classes import IsovalueClass, build_classes, runs
 from .clustering import FALLBACK_DAMPINGS, cluster_isovalues, unconverged_advice
 from .errors import ClusteringError
@@ -478,7 +478,8 @@ def design_transfer_function(
 
     chunked = is_dask_array(values)
     shape = np.shape(values.bins if isinstance(values, Quantization) else values)
-    check_memory(shape, opts["n_bins"], streamed=chunked)
+    row_bytes = chunk_row_bytes(values, opts["n_bins"]) if chunked else 0
+    check_memory(shape, opts["n_bins"], streamed=chunked, row_bytes=row_bytes)
     with stage("quantize", "quantizing"):
         if isinstance(values, Quantization):
             quantized = values

@@ -17,7 +17,7 @@ from .quantize import MAX_BINS
 _BINS_BYTES_PER_VOXEL = 1
 # Float64 matrices of n_bins x n_bins alive at once while aggregating the levels.
 _MATRICES = 6
-# Slabs, chunks (a streamed volume: up to three rows of chunks, see chunked.voxel_slabs) and libraries.
+# Slabs, chunks and libraries.
 _OVERHEAD_BYTES = 256 << 20
 
 
@@ -94,7 +94,14 @@ def design_memory_bytes(shape: tuple, n_bins: int, streamed: bool = False) -> in
     return int(bins_bytes + levels_bytes + _MATRICES * table_bytes + _OVERHEAD_BYTES)
 
 
-def check_memory(shape: tuple, n_bins: Optional[int], *, input_bytes: int = 0, streamed: bool = False) -> None:
+# Rows of chunks of a streamed volume held at once at worst: the one the engine folds, the next one being computed
+# (its source values and bins), and the one the engine still refers to while it waits (see chunked.voxel_slabs).
+_ROWS_HELD = 3
+
+
+def check_memory(
+    shape: tuple, n_bins: Optional[int], *, input_bytes: int = 0, streamed: bool = False, row_bytes: int = 0
+) -> None:
     """Raise :class:`InsufficientMemoryError` when the design would need more memory than is available.
 
     Args:
@@ -102,10 +109,13 @@ def check_memory(shape: tuple, n_bins: Optional[int], *, input_bytes: int = 0, s
         n_bins: the number of bins; None (or a bad value, which the step that uses it reports) counts the input only.
         input_bytes: bytes still to be allocated for the volume itself (a reader checking a header before reading).
         streamed: the volume is a dask array designed slab by slab (see :func:`design_memory_bytes`).
+        row_bytes: bytes of one row of chunks of a streamed volume along axis 0, source values and bins together
+            (:func:`~.chunked.chunk_row_bytes`): a volume chunked in thick rows needs that much more.
     """
     valid_bins = not isinstance(n_bins, bool) and isinstance(n_bins, int) and 2 <= n_bins <= MAX_BINS
     available = available_memory_bytes()
-    needed = int(input_bytes) + (design_memory_bytes(shape, n_bins, streamed) if valid_bins else 0)  # type: ignore[arg-type]
+    needed = int(input_bytes) + _ROWS_HELD * int(row_bytes)
+    needed += design_memory_bytes(shape, n_bins, streamed) if valid_bins else 0  # type: ignore[arg-type]
     if available is not None and needed > available:
         dims = " x ".join(str(int(n)) for n in shape)
         bins = f" with {n_bins} bins" if valid_bins else ""
