@@ -23,7 +23,7 @@ import IsoSimilarityTFLib
 import isosimtf
 from IsoSimilarityTFLib import __version__
 from IsoSimilarityTFLib.clustering import unconverged_advice
-from IsoSimilarityTFLib.design import TransferFunctionDesign, design_transfer_function
+from IsoSimilarityTFLib.design import Tissue, TransferFunctionDesign, design_transfer_function
 from IsoSimilarityTFLib.errors import DependencyError
 from isosimtf import cli, console, figures, formatting, preload, run
 from isosimtf.phantom import head_phantom
@@ -763,3 +763,13 @@ def test_long_passes_show_a_progress_bar_on_a_terminal() -> None:
     assert stream.getvalue().endswith(
         "similarity (hierarchical isosurface similarity): unit cells [#####...............]  25%"
     )
+
+
+def test_a_nearly_clear_tissue_is_labelled_so() -> None:
+    def tissue(opacity: float) -> Tissue:
+        return Tissue(id=1, classes=[1], voxels=10, value_ranges=[[-977.0, -413.0]], color=[0.5, 0.1, 0.1],
+                      opacity=opacity, visible=True)  # fmt: skip
+
+    lines = figures.tissue_label_lines(tissue(0.001), 0.099, 0)
+    assert lines == ("Tissue 2  9.9% of voxels", "-977 .. -413  nearly clear")
+    assert figures.tissue_label_lines(tissue(0.5), 0.099, 0)[1] == "-977 .. -413"

@@ -17,6 +17,8 @@ LABEL_BACKGROUND = (28, 28, 28)
 LABEL_TEXT = (235, 235, 235)
 GRID_GAP = 4
 GRID_BACKGROUND = (64, 64, 64)
+# Opacity per mm below which a tissue's tile is labelled "nearly clear" (a few % over the few cm of a head).
+NEARLY_CLEAR = 0.01
 
 
 def text_image(text: str, font_size: int = 13) -> Optional[np.ndarray]:
@@ -75,7 +77,9 @@ def tissue_label_lines(tissue: Tissue, fraction: float, decimals: int) -> tuple[
     """The two label lines of a tissue tile: its name (as its segment is named) and voxel share, then its intensity
     range(s)."""
     first = f"Tissue {tissue.id + 1}  {format_percent(fraction)}% of voxels"
-    return first, format_ranges(tissue.value_ranges, decimals, limit=1)
+    second = format_ranges(tissue.value_ranges, decimals, limit=1)
+    # A tissue the look keeps almost transparent (fat and air on CT) renders as an empty tile: say why.
+    return first, second + ("  nearly clear" if tissue.opacity < NEARLY_CLEAR else "")
 
 
 def class_grid(
