@@ -424,6 +424,8 @@ def _child_floor(cfg: dict) -> dict:
 def _child_reference(cfg: dict) -> dict:
     """Fast similarity against the explicit incidence-matrix reference on one small phantom."""
     import numpy as np
+
+    sys.path.insert(0, str(ROOT / "Testing"))  # the reference lives with the tests
     from reference import reference_similarity_matrix
 
     from IsoSimilarityTFLib import quantize, similarity_matrix
@@ -781,6 +783,10 @@ def _fmt_mb(value: float | None) -> str:
     return "-" if value is None else f"{value:.0f} MB"
 
 
+def _loads(loadavg: list[float]) -> str:
+    return ", ".join(f"{value:.1f}" for value in loadavg)
+
+
 def _table(header: list[str], rows: list[list[str]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
     lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
@@ -970,8 +976,9 @@ def build_report(machine: dict, groups: dict[str, list[dict]], quick: bool, wall
         stages = ", ".join(f"{k} {_fmt_s(v)}" for k, v in latency["last_full_run_stages_s"].items())
         md.append(
             f"\n\nWall time of `python -m isosimtf` from start to exit, each variant in turn, "
-            f"{latency['config']['repeats']} rounds; load average {latency['loadavg_before']} before and "
-            f"{latency['loadavg_after']} after (2 cores: a load above 1 slows every figure). Stages of the last full "
+            f"{latency['config']['repeats']} rounds; load average (1, 5, 15 min) {_loads(latency['loadavg_before'])} "
+            f"before and {_loads(latency['loadavg_after'])} after (2 cores: a load above 1 slows every figure). "
+            "Stages of the last full "
             f"run: {stages}.\n"
         )
     md.append("\n\n### Similarity against the numpy floor (same process, interleaved)\n")

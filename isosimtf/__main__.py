@@ -1,7 +1,5 @@
 """``python -m isosimtf``: the same as the ``isosimtf`` command."""
 
-import sys
+from .cli import console_main
 
-from .cli import main
-
-sys.exit(main())
+console_main()

@@ -275,5 +275,17 @@ def _message(error: BaseException) -> str:
     return f"internal error ({type(error).__name__}: {error}); rerun with ISOSIMTF_DEBUG=1 for details"
 
 
+def console_main() -> NoReturn:
+    """The ``isosimtf`` command: :func:`main`, then the process ends at once with its exit status.
+
+    Every output file is closed by then; what the interpreter's own shutdown would add (tearing down the modules of
+    scipy, scikit-learn and VTK, a last garbage collection) took 0.5 s of a 2 s run.
+    """
+    code = main()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    console_main()
