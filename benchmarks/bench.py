@@ -20,7 +20,7 @@ Method
 * Stages: load (reading the file; for phantoms: generating it), quantize, similarity, clustering (affinity
   propagation), classes, tf (building the ``vtkVolumeProperty`` from the classes) and render (a 512x512 headless Slicer
   CPU ray-cast picture of the volume with the designed TF, new scene each time: volume copy + first render).
-  "pipeline" = quantize + similarity + clustering + classes + tf of the same run.
+  "pipeline" = quantize + similarity + clustering + classes + tissues + tf of the same run.
   quantize..classes are timed by ``design_transfer_function`` itself (``design.timings_s``).
 * Peak memory per stage: just before a stage starts, the kernel's peak-RSS counter of the child is reset to the
   current RSS (``echo 5 > /proc/self/clear_refs``); when the stage ends ``VmHWM`` (peak RSS) is read from
@@ -77,8 +77,8 @@ TARGET_LATENCY_FULL_S = 3.5
 # Cells per chunk tried for the floor; the fastest on this machine is the floor.
 FLOOR_CHUNK_CELLS = (1 << 17, 1 << 18, 1 << 19)
 
-STAGES = ("load", "quantize", "similarity", "clustering", "classes", "tf", "render")
-PIPELINE_STAGES = ("quantize", "similarity", "clustering", "classes", "tf")
+STAGES = ("load", "quantize", "similarity", "clustering", "classes", "tissues", "tf", "render")
+PIPELINE_STAGES = ("quantize", "similarity", "clustering", "classes", "tissues", "tf")
 
 
 # ----------------------------------------------------------------------------------------------------- memory probes
@@ -218,6 +218,7 @@ def _child_pipeline(cfg: dict) -> dict:
     import IsoSimilarityTFLib
     from IsoSimilarityTFLib import design_transfer_function
     from IsoSimilarityTFLib.clustering import ClusteringError
+    from IsoSimilarityTFLib.design import STAGES as DESIGN_STAGES
 
     meter = PeakMeter()
     out: dict[str, Any] = {"config": cfg, "memory_method": meter.method, "loadavg_start": os.getloadavg()}
@@ -251,7 +252,7 @@ def _child_pipeline(cfg: dict) -> dict:
                 if state["stage"] is not None:
                     stage_memory[state["stage"]] = (meter.peak_mb() - state["start_rss"], meter.peak_mb())
                 state["stage"], state["start_rss"] = stage, meter.reset()
-            elif stage == "classes" and fraction >= 1.0:
+            elif stage == DESIGN_STAGES[-1] and fraction >= 1.0:
                 stage_memory[stage] = (meter.peak_mb() - state["start_rss"], meter.peak_mb())
 
         try:
@@ -827,7 +828,7 @@ def build_report(machine: dict, groups: dict[str, list[dict]], quick: bool, wall
         "\n\nTimes: median of warm runs (the first call of each fresh process, which imports scikit-learn, is "
         "excluded and listed separately). Memory: peak RSS increase of the stage over the RSS at its start "
         f"(method: `{method}`; kernel peak-RSS reset + VmHWM, one fresh process per configuration). "
-        "pipeline = quantize + similarity + clustering + classes + tf. "
+        "pipeline = quantize + similarity + clustering + classes + tissues + tf. "
         "Render = 512x512 headless Slicer CPU ray casting, new scene each time.\n"
     )
 
