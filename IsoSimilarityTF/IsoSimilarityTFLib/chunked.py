@@ -20,7 +20,15 @@ from typing import Callable, Optional
 import numpy as np
 
 from .classes import contact_planes
-from .quantize import Quantization, bin_volume, bins_dtype, checked_value_range, count_bins, validate_volume
+from .quantize import (
+    Quantization,
+    bin_volume,
+    bins_dtype,
+    checked_n_bins,
+    count_bins,
+    resolved_value_range,
+    validate_volume,
+)
 
 
 def is_dask_array(values: object) -> bool:
@@ -80,19 +88,12 @@ def quantize_chunked(
     Every chunk is quantized by :func:`~.quantize.quantize` with the whole volume's range (or the one given), which is
     what the in-memory quantization does, so the bins are the same.
     """
-    from .options import OPTIONS  # the table imports the engine's modules, this one among them
-
     # The in-memory checks, before any pass over the data: the volume's on a zero-stride stand-in of its shape and
     # dtype (no memory).
     validate_volume(np.lib.stride_tricks.as_strided(np.zeros(1, dtype=values.dtype), values.shape, (0,) * values.ndim))
-    n_bins = OPTIONS["n_bins"].check(n_bins)
+    n_bins = checked_n_bins(n_bins)
     low, high = _value_bounds(values, progress)
-    if value_range is None:
-        if low == high:
-            raise ValueError(f"the volume is constant (every voxel is {float(low):g}): there is nothing to classify")
-        value_range = (float(low), float(high))
-    else:
-        value_range = checked_value_range(value_range, (float(low), float(high)))
+    value_range = resolved_value_range(value_range, (float(low), float(high)))
     # A chunk one voxel thick along an axis is no volume for quantize(): give it its neighbour's planes too.
     values = values.rechunk(tuple(_merge_thin_chunks(chunks) for chunks in values.chunks))
     value_range = (float(value_range[0]), float(value_range[1]))

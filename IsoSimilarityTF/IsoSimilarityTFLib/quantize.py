@@ -141,10 +141,22 @@ def bins_dtype(n_bins: int) -> np.dtype:
     return np.dtype(np.uint8 if n_bins <= 256 else np.uint16)
 
 
-def checked_value_range(value_range, data_range: tuple[float, float]) -> tuple[float, float]:
-    """A given ``value_range`` as ``(low, high)``, refused when it misses the volume's ``data_range`` altogether."""
+def checked_n_bins(n_bins) -> int:
+    """``n_bins`` as an int, checked against its entry in the options table (2 to ``MAX_BINS``)."""
     from .options import OPTIONS  # the table imports this module for MAX_BINS
 
+    return OPTIONS["n_bins"].check(n_bins)
+
+
+def resolved_value_range(value_range, data_range: tuple[float, float]) -> tuple[float, float]:
+    """The range to quantize over: the volume's own ``data_range`` when ``value_range`` is None (refused when the
+    volume is constant), else ``value_range`` checked and refused when it misses ``data_range`` altogether."""
+    from .options import OPTIONS  # the table imports this module for MAX_BINS
+
+    if value_range is None:
+        if data_range[0] == data_range[1]:
+            raise ValueError(f"the volume is constant (every voxel is {data_range[0]:g}): there is nothing to classify")
+        return float(data_range[0]), float(data_range[1])
     low, high = OPTIONS["value_range"].check(value_range)
     if high < data_range[0] or low > data_range[1]:
         raise ValueError(
@@ -173,16 +185,9 @@ def quantize(values: np.ndarray, n_bins: int = 256, value_range: Optional[tuple[
         ValueError: on a volume that is not 3-D scalar, holds NaN/inf, is constant, or on a bad ``n_bins``/range.
     """
     values = validate_volume(values)
-    if isinstance(n_bins, bool) or not isinstance(n_bins, (int, np.integer)) or not 2 <= n_bins <= MAX_BINS:
-        raise ValueError(f"n_bins must be an integer from 2 to {MAX_BINS}; got {n_bins!r}")
-    n_bins = int(n_bins)
+    n_bins = checked_n_bins(n_bins)
     data_range = _finite_range(values, n_bins)
-    if value_range is None:
-        if data_range[0] == data_range[1]:
-            raise ValueError(f"the volume is constant (every voxel is {data_range[0]:g}): there is nothing to classify")
-        value_range = data_range
-    else:
-        value_range = checked_value_range(value_range, data_range)
+    value_range = resolved_value_range(value_range, data_range)
 
     bins = bin_volume(values, n_bins, value_range, data_range)
     return Quantization(bins=bins, n_bins=n_bins, value_range=value_range)

@@ -15,7 +15,7 @@ import numpy as np
 from .cells import GATHERED_CELLS, OctreeBuilder, Shape3, octree_levels, unit_cell_slabs
 from .chunked import is_dask_array, voxel_slabs
 from .memory import check_memory
-from .quantize import MAX_BINS
+from .quantize import checked_n_bins
 
 CROSSINGS = ("inclusive", "strict")
 NORMALIZATIONS = ("thesis", "ma-entezari")
@@ -167,8 +167,7 @@ def _check_bins(bins: np.ndarray, n_bins: int) -> np.ndarray:
         raise ValueError(f"bins must be a 3-D array with at least 2 voxels per axis; got shape {bins.shape}")
     if not np.issubdtype(bins.dtype, np.integer):
         raise ValueError(f"bins must hold integers (use quantize() first); got dtype {bins.dtype}")
-    if isinstance(n_bins, bool) or not isinstance(n_bins, (int, np.integer)) or not 2 <= n_bins <= MAX_BINS:
-        raise ValueError(f"n_bins must be an integer from 2 to {MAX_BINS}; got {n_bins!r}")
+    n_bins = checked_n_bins(n_bins)
     # A clear error, not numpy's MemoryError (or the OOM killer) mid-way.
     check_memory(bins.shape, int(n_bins), streamed=is_dask_array(bins))
     if not is_dask_array(bins):  # a dask volume's slabs are checked as they are read: no pass of its own
