@@ -1,12 +1,12 @@
 """Step 4 of the pipeline: group isovalues with affinity propagation (Frey & Dueck 2007), no class count needed."""
 
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Optional, Union
 
 import numpy as np
 
+from .affinity_propagation import IterationCallback, affinity_propagation
 from .errors import ClusteringError
 
 PREFERENCES = ("median", "minimum")
@@ -146,6 +146,7 @@ def cluster_isovalues(
     max_iter: int = 200,
     convergence_iter: int = 15,
     empty_isovalues: Optional[Sequence[int]] = None,
+    on_iteration: Optional[IterationCallback] = None,
 ) -> ClusteringResult:
     """Cluster isovalues by affinity propagation on ``similarity - 1`` (the negated distance).
 
@@ -158,6 +159,8 @@ def cluster_isovalues(
         convergence_iter: iterations with unchanged exemplars that count as converged.
         empty_isovalues: isovalues left out of AP (they cross no cell); each takes the class of the nearest other
             isovalue. Default: those whose row of ``similarity`` is all zero.
+        on_iteration: called as ``on_iteration(iteration, max_iter)`` after each AP iteration; raising from it stops
+            the clustering.
 
     Returns:
         The classes; deterministic for the same input. ``converged`` is reported, not enforced.
@@ -167,9 +170,6 @@ def cluster_isovalues(
             and in [0, 1], isovalues out of range). ClusteringError: no isovalue to cluster, or AP ended with no
             exemplar.
     """
-    from sklearn.cluster import affinity_propagation
-    from sklearn.exceptions import ConvergenceWarning
-
     from .options import OPTIONS  # the table imports this module for its choices
 
     damping = OPTIONS["damping"].check(damping)
@@ -194,19 +194,15 @@ def cluster_isovalues(
         pref = 0.0
     else:
         pref = preference_value(affinity, preference)
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            exemplars, member_labels, n_iter = affinity_propagation(
-                affinity,
-                preference=pref,
-                damping=damping,
-                max_iter=int(max_iter),
-                convergence_iter=int(convergence_iter),
-                return_n_iter=True,
-                random_state=0,
-            )
-        converged = not any(issubclass(w.category, ConvergenceWarning) for w in caught)
-        exemplars = np.asarray(exemplars, dtype=np.intp)
+        run = affinity_propagation(
+            affinity,
+            pref,
+            damping=damping,
+            max_iter=int(max_iter),
+            convergence_iter=int(convergence_iter),
+            on_iteration=on_iteration,
+        )
+        exemplars, member_labels, n_iter, converged = run.exemplars, run.labels, run.n_iter, run.converged
         if exemplars.size == 0:
             raise ClusteringError(
                 f"affinity propagation found no exemplar in {n_iter} iterations; "

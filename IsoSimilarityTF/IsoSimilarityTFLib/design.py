@@ -30,6 +30,8 @@ from .transfer_function import (
 
 StageProgress = Callable[[str, float, str], None]
 
+#: Affinity propagation reports progress after about this many message updates (a few milliseconds of work).
+_PROGRESS_ENTRIES = 2_000_000
 #: The engine's stages, in order: the keys of ``timings_s`` and the ``stage`` given to ``progress``.
 STAGES = ("quantize", "similarity", "clustering", "classes", "tissues")
 # Scalar opacity unit distance in mm: opacity is per millimetre, as in Slicer's presets, whatever the spacing.
@@ -427,6 +429,22 @@ def _check_spacing(spacing) -> Optional[tuple[float, float, float]]:
     return spacing
 
 
+def _clustering_progress(report: Callable[[str, float, str], None], n_bins: int, damping: float):
+    """AP's ``on_iteration``: a clustering progress report about every ``_PROGRESS_ENTRIES`` message updates (an
+    iteration updates ``n_bins**2`` of them), so that even 4096 bins can be cancelled between iterations."""
+    every = max(1, _PROGRESS_ENTRIES // (n_bins * n_bins))
+
+    def on_iteration(iteration: int, max_iter: int) -> None:
+        if iteration % every == 0:
+            report(
+                "clustering",
+                iteration / max_iter,
+                f"affinity propagation: iteration {iteration} of at most {max_iter} (damping {damping:g})",
+            )
+
+    return on_iteration
+
+
 def design_transfer_function(
     values: Union[np.ndarray, Quantization],
     spacing: Optional[Sequence[float]] = None,
@@ -522,6 +540,7 @@ def design_transfer_function(
                 preference=opts["preference"],
                 damping=damping,
                 empty_isovalues=similarity.empty_isovalues,
+                on_iteration=_clustering_progress(report, quantized.n_bins, damping),
                 **iterations,
             )
             if clusters.converged:
