@@ -14,7 +14,7 @@ Method
   figures of one case do not leak into another and every case starts with the same imports.
 * Times are ``time.perf_counter`` wall-clock seconds; the reported figure is the MEDIAN over the warm runs (>= 5 for
   volumes up to 256^3, >= 3 for 384^3 and 512^3). The first pipeline call of each child is run once before them and
-  reported apart as "first call": it includes importing scikit-learn (~1 s) and first-touch page faults.
+  reported apart as "first call": it includes first-touch page faults and numpy's first calls.
 * Out-of-core cases (``kind: out_of_core``) read the volume with ``isosimtf.chunked_readers`` (a dask array) and
   design it once, end to end: their "process peak" is the child's ``VmHWM`` from just before the read to the end.
 * Stages: load (reading the file; for phantoms: generating it), quantize, similarity, clustering (affinity
@@ -28,7 +28,7 @@ Method
   needed at its peak, exact (kernel accounting, no sampling) and free of timing overhead. Stage boundaries inside
   ``design_transfer_function`` are caught through its ``progress`` callback. The maximum over the warm runs is
   reported. "process peak" is the absolute ``VmHWM`` of the child during the pipeline, i.e. including the Python
-  interpreter, numpy/scikit-learn/VTK libraries and the input volume. Where ``clear_refs`` cannot be written, a psutil
+  interpreter, numpy/VTK libraries and the input volume. Where ``clear_refs`` cannot be written, a psutil
   thread sampling RSS every 1 ms is used instead (this is said in the output).
 """
 
@@ -261,8 +261,7 @@ def _child_pipeline(cfg: dict) -> dict:
             kept = {**options, "unconverged": "keep"}
             return design_transfer_function(values, spacing, progress=progress, **kept), str(error)
 
-    # first (cold) call: scikit-learn is imported here.
-    sklearn_loaded = "sklearn" in sys.modules
+    # first (cold) call
     start = time.perf_counter()
     design, note = design_once(None)
     first_total = time.perf_counter() - start
@@ -272,7 +271,6 @@ def _child_pipeline(cfg: dict) -> dict:
         **design.timings_s,
         "tf": time.perf_counter() - start,
         "total": first_total,
-        "sklearn_already_imported": sklearn_loaded,
     }
     out["rss_before_runs_mb"] = meter.rss_mb()
 
@@ -583,7 +581,6 @@ def run_latency(cfg: dict, timeout: float) -> dict:
 
 def machine_description() -> dict:
     import numpy
-    import sklearn
     import vtk
 
     cpu = "unknown"
@@ -614,7 +611,6 @@ def machine_description() -> dict:
         "os": platform.platform(),
         "python": platform.python_version(),
         "numpy": numpy.__version__,
-        "scikit_learn": sklearn.__version__,
         "vtk": vtk.vtkVersion.GetVTKVersion(),
         "slicer_core": slicer_core,
         "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
@@ -825,8 +821,8 @@ def build_report(machine: dict, groups: dict[str, list[dict]], quick: bool, wall
     md.append(_table(["item", "value"], [[k, v] for k, v in machine.items()]))
     method = next((r.get("memory_method") for r in everything if r.get("memory_method")), "?")
     md.append(
-        "\n\nTimes: median of warm runs (the first call of each fresh process, which imports scikit-learn, is "
-        "excluded and listed separately). Memory: peak RSS increase of the stage over the RSS at its start "
+        "\n\nTimes: median of warm runs (the first call of each fresh process is excluded and listed "
+        "separately). Memory: peak RSS increase of the stage over the RSS at its start "
         f"(method: `{method}`; kernel peak-RSS reset + VmHWM, one fresh process per configuration). "
         "pipeline = quantize + similarity + clustering + classes + tissues + tf. "
         "Render = 512x512 headless Slicer CPU ray casting, new scene each time.\n"
@@ -1033,7 +1029,7 @@ def build_report(machine: dict, groups: dict[str, list[dict]], quick: bool, wall
             rows,
         )
     )
-    md.append("\n\nFirst (cold) call in each fresh process, for comparison (includes importing scikit-learn):\n")
+    md.append("\n\nFirst (cold) call in each fresh process, for comparison:\n")
     rows = []
     for r in everything:
         if r["config"]["kind"] == "pipeline" and "error" not in r:

@@ -279,7 +279,7 @@ def console_main() -> NoReturn:
     """The ``isosimtf`` command: :func:`main`, then the process ends at once with its exit status.
 
     Every output file is closed by then; what the interpreter's own shutdown would add (tearing down the modules of
-    scipy, scikit-learn and VTK, a last garbage collection) took 0.5 s of a 2 s run.
+    VTK and slicer-core, a last garbage collection) took 0.5 s of a 2 s run.
     """
     code = main()
     sys.stdout.flush()

@@ -30,4 +30,3 @@ def format_percent(fraction: float, decimals: int = 1) -> str:
 def color_hex(color) -> str:
     """``#rrggbb`` of an RGB colour in 0..1."""
     return "#" + "".join(f"{int(round(255 * min(max(float(c), 0.0), 1.0))):02x}" for c in color)
-

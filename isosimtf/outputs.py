@@ -124,15 +124,33 @@ def shown_tissues(design: TransferFunctionDesign) -> list[Tissue]:
     return [t for t in design.tissues if not t.background and any(design.is_shown(c) for c in t.classes)]
 
 
+def open_headless(
+    size: int = DEFAULT_SIZE,
+    *,
+    tile_size: Optional[int] = None,
+    backdrop: str = DEFAULT_BACKDROP,
+    ray_casting: str = DEFAULT_RAY_CASTING,
+) -> "HeadlessSlicer":
+    """The headless Slicer that :func:`render_outputs` draws in, its window at tile size (default: half of ``size``).
+
+    Args:
+        backdrop: "black" or "slicer" (Slicer's blue gradient), see ``rendering.BACKDROPS``.
+        ray_casting: "cpu" or "gpu", see ``rendering.RAY_CASTING``.
+    """
+    from .rendering import HeadlessSlicer
+
+    tile_size = tile_size or max(MIN_SIZE, size // 2)
+    background = (0.0, 0.0, 0.0) if backdrop == "black" else None
+    return HeadlessSlicer(size=(tile_size, tile_size), rendering_method=ray_casting, background=background)
+
+
 def render_outputs(
     result: RunResult,
     *,
     view: str = DEFAULT_VIEW,
     size: int = DEFAULT_SIZE,
-    tile_size: Optional[int] = None,
     progress: Optional[ProgressPrinter] = None,
-    backdrop: str = DEFAULT_BACKDROP,
-    ray_casting: str = DEFAULT_RAY_CASTING,
+    headless: Optional["HeadlessSlicer"] = None,
 ) -> None:
     """Render with Slicer's volume rendering (headless): classes.png, render.png, and save the Slicer scene.
 
@@ -144,45 +162,46 @@ def render_outputs(
     function as in render.png.
 
     Args:
-        backdrop: "black" or "slicer" (Slicer's blue gradient), see ``rendering.BACKDROPS``.
-        ray_casting: "cpu" or "gpu", see ``rendering.RAY_CASTING``.
+        headless: a new, empty :func:`open_headless` to draw in (the caller closes it); None: one with the defaults,
+            opened and closed here.
     """
     from IsoSimilarityTFLib.mrml import apply_design
 
-    from .rendering import HeadlessSlicer, write_png
+    from .rendering import write_png
 
     design, volume, outdir = result.design, result.volume, result.outdir
-    tile_size = tile_size or max(MIN_SIZE, size // 2)
-    background = (0.0, 0.0, 0.0) if backdrop == "black" else None
-    with HeadlessSlicer(size=(tile_size, tile_size), rendering_method=ray_casting, background=background) as headless:
-        volume_node = headless.add_volume(volume.values, name=volume.name, ijk_to_ras=volume.ijk_to_ras())
-        # The scene's copy of the volume is written raw: gzip took longer than all the tissue tiles (0.2 s on the
-        # head CT), and the input is at hand for anyone who wants it small.
-        volume_node.AddDefaultStorageNode()
-        volume_node.GetStorageNode().SetUseCompression(False)
-        property_node = apply_design(volume_node, design, headless.volume_rendering_logic)
-        headless.frame_camera(view)
-        tissues = shown_tissues(design)
-        if tissues:
-            path = outdir / OUTPUT_FILES["classes_png"]
-            write_png(_tissue_grid(headless, property_node, design, tissues, progress), path)
-            result.files["classes_png"] = path
+    if headless is None:
+        with open_headless(size) as headless:
+            render_outputs(result, view=view, size=size, progress=progress, headless=headless)
+        return
+    volume_node = headless.add_volume(volume.values, name=volume.name, ijk_to_ras=volume.ijk_to_ras())
+    # The scene's copy of the volume is written raw: gzip took longer than all the tissue tiles (0.2 s on the
+    # head CT), and the input is at hand for anyone who wants it small.
+    volume_node.AddDefaultStorageNode()
+    volume_node.GetStorageNode().SetUseCompression(False)
+    property_node = apply_design(volume_node, design, headless.volume_rendering_logic)
+    headless.frame_camera(view)
+    tissues = shown_tissues(design)
+    if tissues:
+        path = outdir / OUTPUT_FILES["classes_png"]
+        write_png(_tissue_grid(headless, property_node, design, tissues, progress), path)
+        result.files["classes_png"] = path
 
-        if progress is not None:
-            progress.update("render.png")
-        headless.render_window.SetSize(size, size)
-        path = outdir / OUTPUT_FILES["render_png"]
-        write_png(headless.render(view=None, reset_camera=False), path)
-        result.files["render_png"] = path
+    if progress is not None:
+        progress.update("render.png")
+    headless.render_window.SetSize(size, size)
+    path = outdir / OUTPUT_FILES["render_png"]
+    write_png(headless.render(view=None, reset_camera=False), path)
+    result.files["render_png"] = path
 
-        if progress is not None:
-            progress.update("classes.seg.nrrd")
-        write_segmentation(result, headless, volume_node)
+    if progress is not None:
+        progress.update("classes.seg.nrrd")
+    write_segmentation(result, headless, volume_node)
 
-        if progress is not None:
-            progress.update("scene")
-        result.scene_files = save_scene(headless.scene, outdir)
-        result.files["scene"] = outdir / OUTPUT_FILES["scene"]
+    if progress is not None:
+        progress.update("scene")
+    result.scene_files = save_scene(headless.scene, outdir)
+    result.files["scene"] = outdir / OUTPUT_FILES["scene"]
 
 
 def _tissue_grid(

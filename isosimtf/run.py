@@ -3,7 +3,7 @@
 import gc
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from typing import Callable, Optional
 
 from IsoSimilarityTFLib.design import STAGES as DESIGN_STAGES
@@ -22,11 +22,10 @@ from .outputs import (
     MAX_SIZE,
     MIN_SIZE,
     RunResult,
-    render_outputs,
     write_classes_json,
     write_data_files,
 )
-from .preload import CLUSTERING_MODULE, BackgroundImports
+from .render_process import RenderProcess
 from .rendering import BACKDROPS, RAY_CASTING, VIEW_DIRECTIONS, slicer_core_available
 
 #: The command's stages, in order, as printed and as keys of ``timings_s`` in classes.json.
@@ -42,7 +41,7 @@ LABEL_MAP_VALUES = 16
 def _cyclic_gc_paused() -> Iterator[None]:
     """Pause Python's cyclic garbage collector (reference counting still frees everything else).
 
-    A run makes almost no cyclic garbage, but importing scipy, scikit-learn and VTK creates about a million objects,
+    A run makes almost no cyclic garbage, but importing VTK and slicer-core creates about a million objects,
     and the collector's full passes over them cost 0.2-0.3 s of a rendered run on the head CT.
     """
     enabled = gc.isenabled()
@@ -92,7 +91,7 @@ def run(
 
     Raises:
         UsageError, VolumeReadError, ValueError: bad output path, input or option (a usage or input error).
-        DependencyError: scikit-learn cannot be imported. ClusteringError: affinity propagation failed.
+        ClusteringError: affinity propagation failed.
         OutputError: a file cannot be written. RenderError: rendering failed (the data files are written by then).
     """
     if view not in VIEW_DIRECTIONS:
@@ -123,78 +122,60 @@ def run(
     path = check_output_path(outdir)
     previous = previous_outputs(path)
 
-    started = time.perf_counter()
-    imports = BackgroundImports([CLUSTERING_MODULE])
-    progress.stage("read", str(source))
-    n_bins = options.get("n_bins", DEFAULT_OPTIONS["n_bins"])
-    volume = load_input(source, phantom_size=phantom_size, seed=seed, n_bins=n_bins)
-    timings = {"read": time.perf_counter() - started}
-    info = input_info(source, volume)
-    for message in _input_warnings(info, n_bins):
-        warning(message)
-    if render and info["read_lazily"]:
-        warning("the volume is larger than memory (read lazily): render.png, classes.png and the scene are skipped")
-        render, progress.total = False, len(STAGES) - 1
+    # The pictures are made by a second process, started now so that its slow start overlaps reading and designing.
+    renderer = RenderProcess(size=size, backdrop=backdrop, ray_casting=ray_casting) if render else nullcontext()
+    with renderer:
+        started = time.perf_counter()
+        progress.stage("read", str(source))
+        n_bins = options.get("n_bins", DEFAULT_OPTIONS["n_bins"])
+        volume = load_input(source, phantom_size=phantom_size, seed=seed, n_bins=n_bins)
+        timings = {"read": time.perf_counter() - started}
+        info = input_info(source, volume)
+        for message in _input_warnings(info, n_bins):
+            warning(message)
+        if render and info["read_lazily"]:
+            warning("the volume is larger than memory (read lazily): render.png, classes.png and the scene are skipped")
+            render, progress.total = False, len(STAGES) - 1
 
-    waited: list[float] = []
-    design = design_transfer_function(
-        volume.values, volume.spacing, progress=_after_import(imports, progress.design_callback, waited), **options
-    )
-    timings.update(design.timings_s)
-    timings["clustering"] += sum(waited)  # the stage's time includes waiting for scikit-learn's import
-    result = RunResult(design, volume, info, path, timings_s=timings, warnings=warnings)
-    for message in _design_warnings(result):
-        warning(message)
+        design = design_transfer_function(volume.values, volume.spacing, progress=progress.design_callback, **options)
+        timings.update(design.timings_s)
+        result = RunResult(design, volume, info, path, timings_s=timings, warnings=warnings)
+        for message in _design_warnings(result):
+            warning(message)
 
-    start = time.perf_counter()
-    progress.stage("write", str(path))
-    create_output_folder(path)
-    write_data_files(result)
-    timings["write"] = time.perf_counter() - start
+        start = time.perf_counter()
+        progress.stage("write", str(path))
+        create_output_folder(path)
+        write_data_files(result)
+        timings["write"] = time.perf_counter() - start
 
-    try:
-        if render:
-            start = time.perf_counter()
-            progress.stage("render", "(Slicer volume rendering, headless)")
-            try:
-                render_outputs(
-                    result, view=view, size=size, progress=progress, backdrop=backdrop, ray_casting=ray_casting
-                )
-            except (RuntimeError, OSError, ValueError) as error:
-                raise RenderError(
-                    f"rendering failed ({error}); the other outputs are in '{path}' (use --no-render to skip rendering)"
-                ) from None
-            timings["render"] = time.perf_counter() - start
-    finally:
-        removed = remove_stale(path, previous, result.written())
-        if removed:
+        try:
+            if render:
+                start = time.perf_counter()
+                progress.stage("render", "(Slicer volume rendering, headless)")
+                _render(renderer, result, view=view, size=size, progress=progress)
+                timings["render"] = time.perf_counter() - start
+        finally:
+            removed = remove_stale(path, previous, result.written())
+            if removed:
+                progress.finish()
+                names = ", ".join(removed)
+                warning(f"removed {len(removed)} file(s) of a previous run that this run did not write: {names}")
             progress.finish()
-            warning(
-                f"removed {len(removed)} file(s) of a previous run that this run did not write: {', '.join(removed)}"
-            )
-        progress.finish()
-        timings["total"] = time.perf_counter() - started
-        write_classes_json(result)
+            timings["total"] = time.perf_counter() - started
+            write_classes_json(result)
     return result
 
 
-def _after_import(
-    imports: BackgroundImports, callback: Callable[[str, float, str], None], waited: list[float]
-) -> Callable[[str, float, str], None]:
-    """The design's progress callback, which also waits for scikit-learn's import when the clustering stage starts.
-
-    The seconds waited are appended to ``waited``. A failed import raises :class:`DependencyError` from the callback,
-    which ends the design there (raising from the callback is how a design is cancelled).
-    """
-
-    def progress(stage: str, fraction: float, message: str) -> None:
-        callback(stage, fraction, message)
-        if stage == "clustering" and fraction == 0.0:
-            start = time.perf_counter()
-            imports.wait(CLUSTERING_MODULE)
-            waited.append(time.perf_counter() - start)
-
-    return progress
+def _render(renderer: RenderProcess, result: RunResult, *, view: str, size: int, progress: ProgressPrinter) -> None:
+    """The render stage: ``renderer`` makes the pictures and the scene; a failure is one :class:`RenderError` line."""
+    try:
+        renderer.render(result, view=view, size=size, progress=progress)
+    except (RuntimeError, OSError, ValueError) as error:
+        raise RenderError(
+            f"rendering failed ({error}); the other outputs are in '{result.outdir}' "
+            "(use --no-render to skip rendering)"
+        ) from None
 
 
 def _input_warnings(info: dict, n_bins: int) -> list[str]:

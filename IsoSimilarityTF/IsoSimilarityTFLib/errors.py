@@ -40,7 +40,3 @@ class OutputError(IsoSimilarityTFError, RuntimeError):
 
 class RenderError(IsoSimilarityTFError, RuntimeError):
     """Rendering with headless Slicer failed (the other outputs are written)."""
-
-
-class DependencyError(IsoSimilarityTFError, RuntimeError):
-    """A package the run needs (e.g. scikit-learn for affinity propagation) cannot be imported."""

@@ -1,0 +1,153 @@
+"""The pictures and the scene, made by a second process that starts with the run.
+
+Importing slicer-core and opening the headless 3D view take about a second, nearly all of it holding the GIL, so a
+thread cannot overlap them with the design (it stalled the design's pure-Python stages instead). A process started
+when the run starts does that on the machine's other core while this one reads the volume and designs; it then
+receives the run (volume and design) and runs :func:`.outputs.render_outputs`, as a run in one process would.
+
+The child is ``python -m isosimtf.render_process``, a fresh interpreter: not ``multiprocessing``, whose ``spawn``
+would run the caller's main script again in the child, and not ``fork``, unsafe in a process holding threads. Messages
+are pickled: jobs on the child's stdin, replies on a pipe of their own (the child's stdout stays free for anything a
+library prints). The child ends after its job, or when the parent closes its stdin (:meth:`RenderProcess.close`, or
+the parent ending).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pickle
+import signal
+import subprocess
+import sys
+import traceback
+from typing import Any, BinaryIO
+
+from IsoSimilarityTFLib.errors import RenderError
+
+from .console import ProgressPrinter
+from .outputs import RunResult
+
+#: Replies of the child: ("progress", label), ("done", files, scene_files) or ("failed", one-line reason).
+_PROGRESS, _DONE, _FAILED = "progress", "done", "failed"
+
+
+class RenderProcess:
+    """A child process that opens a headless Slicer at once and renders one run's outputs when asked (:meth:`render`).
+
+    Args:
+        window: keyword arguments of :func:`.outputs.open_headless` (``size``, ``backdrop``, ``ray_casting``).
+    """
+
+    def __init__(self, **window: Any) -> None:
+        replies, child_replies = os.pipe()
+        try:
+            self._process = subprocess.Popen(
+                [sys.executable, "-m", __name__, str(child_replies), json.dumps(window)],
+                stdin=subprocess.PIPE,
+                pass_fds=(child_replies,),
+                # The child imports what this process imported, from where it did.
+                env={**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)},
+            )
+        except BaseException:
+            os.close(replies)
+            raise
+        finally:
+            os.close(child_replies)  # the child holds its own copy: its end reads as EOF here once it exits
+        self._replies = os.fdopen(replies, "rb")
+
+    def render(self, result: RunResult, *, view: str, size: int, progress: ProgressPrinter | None = None) -> None:
+        """Render ``result`` in the child (see :func:`.outputs.render_outputs`) and record the files it wrote.
+
+        Raises:
+            RenderError: the child failed (its one-line reason) or ended without a word.
+        """
+        try:
+            _send(self._process.stdin, (result, view, size))
+            while True:
+                reply = pickle.load(self._replies)
+                if reply[0] == _PROGRESS and progress is not None:
+                    progress.update(reply[1])
+                elif reply[0] == _DONE:
+                    result.files.update(reply[1])
+                    result.scene_files = reply[2]
+                    return
+                elif reply[0] == _FAILED:
+                    raise RenderError(reply[1])
+        except (EOFError, BrokenPipeError, ConnectionResetError):
+            code = self._process.wait()
+            raise RenderError(f"the rendering process ended unexpectedly (exit code {code})") from None
+
+    def close(self) -> None:
+        """End the child (at once if it is still starting or rendering) and release the pipes."""
+        try:
+            self._process.stdin.close()
+        except BrokenPipeError:
+            pass
+        try:
+            self._process.wait(timeout=2)
+        except subprocess.TimeoutExpired:
+            self._process.kill()
+            self._process.wait()
+        self._replies.close()
+
+    def __enter__(self) -> RenderProcess:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+
+def _send(stream: BinaryIO, message: Any) -> None:
+    pickle.dump(message, stream, protocol=pickle.HIGHEST_PROTOCOL)
+    stream.flush()
+
+
+class _ReplyProgress(ProgressPrinter):
+    """Sends :meth:`update` labels to the parent, which prints them."""
+
+    def __init__(self, replies: BinaryIO) -> None:
+        super().__init__(1, quiet=True)
+        self._replies = replies
+
+    def update(self, message: str) -> None:
+        _send(self._replies, (_PROGRESS, message))
+
+
+def _serve(replies: BinaryIO, window: dict) -> None:
+    """The child: open the headless Slicer, wait for one run, render it, reply."""
+    from .outputs import open_headless, render_outputs
+
+    try:
+        headless, failure = open_headless(**window), None
+    except (RuntimeError, OSError, ValueError) as error:
+        headless, failure = None, str(error)
+    try:
+        result, view, size = pickle.load(sys.stdin.buffer)
+    except EOFError:  # the run ended before its render stage (an error, or nothing to render)
+        return
+    try:
+        if failure is not None:
+            raise RuntimeError(failure)
+        render_outputs(result, view=view, size=size, progress=_ReplyProgress(replies), headless=headless)
+    except (RuntimeError, OSError, ValueError) as error:
+        _send(replies, (_FAILED, str(error)))
+    except Exception:  # a bug: the parent shows the last line, the traceback goes to stderr
+        details = traceback.format_exc()
+        print(details, end="", file=sys.stderr, flush=True)
+        _send(replies, (_FAILED, details.strip().splitlines()[-1]))
+    else:
+        _send(replies, (_DONE, result.files, result.scene_files))
+
+
+if __name__ == "__main__":
+    # Ctrl+C reaches the whole process group: the parent handles it and closes the child's stdin.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        with os.fdopen(int(sys.argv[1]), "wb") as reply_stream:
+            _serve(reply_stream, json.loads(sys.argv[2]))
+    except BrokenPipeError:  # the parent is gone: nobody to reply to
+        pass
+    # Every file is written and closed: skip tearing down VTK and the scene (a few tenths of a second).
+    sys.stderr.flush()
+    os._exit(0)
