@@ -409,6 +409,19 @@ def test_export_segmentation_of_all_classes_and_solo(slicer_app, segmentations, 
         mrml.export_segmentation(volume, design, which="some")
 
 
+def test_export_segmentation_of_more_than_255_classes(slicer_app, segmentations):
+    """Labels take one byte while they fit; a design with 300 classes needs two, and every voxel keeps its class."""
+    values = np.arange(300 * 8, dtype=np.int16).reshape(8, 10, 30) // 8  # 300 values, 8 voxels each
+    design = design_transfer_function(values, n_bins=300, preference=0.0, background="none", tissues="all")
+    assert len(design.classes) > 255
+    volume = slicer_app.add_volume(values, spacing=(1.0, 1.0, 1.0), name="ramp")
+    every = mrml.export_segmentation(volume, design, which="all")
+    assert every.GetSegmentation().GetNumberOfSegments() == len(design.classes)
+    np.testing.assert_array_equal(
+        segment_labels(slicer_app.scene, every, volume), expected_labels(design, volume, design.classes)
+    )
+
+
 # The design as a preset --------------------------------------------------------------------------------------------
 def test_add_preset_puts_the_design_in_the_preset_menu_with_an_icon(slicer_app, phantom_design):
     from IsoSimilarityTFLib.pictures import ICON_SIZE, transfer_function_icon

@@ -402,7 +402,8 @@ def export_segmentation(volume_node, design: TransferFunctionDesign, which: str 
     ensure_segmentation_converters()
     segments = _segments(design, which, level)
     class_ids = class_label_volume(volume_node, design)
-    label_of_class = np.zeros(len(design.classes), dtype=np.uint16)
+    # One byte per voxel whenever it suffices: the labelmap is half as large to compress and save.
+    label_of_class = np.zeros(len(design.classes), dtype=np.uint8 if len(segments) < 256 else np.uint16)
     for number, (_, _, _, members) in enumerate(segments, 1):
         label_of_class[members] = number
     labels = np.ascontiguousarray(label_of_class[class_ids])
