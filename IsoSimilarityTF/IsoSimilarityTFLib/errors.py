@@ -43,4 +43,4 @@ class RenderError(IsoSimilarityTFError, RuntimeError):
 
 
 class DependencyError(IsoSimilarityTFError, RuntimeError):
-    """A package the run needs (e.g. scikit-learn for affinity propagation) cannot be imported."""
+    """A package the run needs cannot be imported (the command line names it and how to install it)."""
