@@ -67,11 +67,6 @@ Frey and Dueck (Science 2007).
         )
 
 
-def resourcePath(fileName: str) -> str:
-    """Path of a file in the module's Resources folder."""
-    return os.path.join(os.path.dirname(os.path.abspath(__file__)), "Resources", fileName)
-
-
 #
 # IsoSimilarityTFParameterNode
 #
@@ -421,16 +416,13 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self._followActiveVolume = node is None or activeVolume is None or node is activeVolume
 
     # Apply. A design expected to take less than about a second runs here, on the main thread, repainting and
-    # checking Cancel at each progress report; a longer one runs in a child process, polled by a timer, so Slicer stays
-    # responsive and Cancel is at once (the process costs about 3 s to start: see IsoSimilarityTFLib.session).
+    # checking Cancel at each progress report (between affinity propagation's iterations too); a longer one runs in a
+    # child process, polled by a timer, so Slicer stays responsive and Cancel is at once (the process costs a few
+    # tenths of a second to start: see IsoSimilarityTFLib.session).
     def onApplyButton(self) -> None:
         if self._running or not self._parameterNode or not self._parameterNode.inputVolume:
             return
         volume = self._parameterNode.inputVolume
-        # Asked before the busy cursor; the install (if accepted) shows its own status.
-        if not self._ensureScikitLearn():
-            self.ui.statusLabel.text = _("scikit-learn is needed to group the isovalues into classes.")
-            return
         options = self.logic.designOptions(self._parameterNode)
         from IsoSimilarityTFLib.session import fit_levels
 
@@ -461,11 +453,6 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
 
         try:
             with slicer.util.tryWithErrorDisplay(_("Failed to compute the transfer function."), waitCursor=True):
-                if "sklearn.cluster" not in sys.modules:
-                    # Imported once per session (about a second, without repaint): said before, not mid-way.
-                    self.ui.progressBar.setFormat(_("Loading scikit-learn..."))
-                    slicer.app.processEvents()
-                    import sklearn.cluster  # noqa: F401
                 try:
                     design = self.logic.run(volume, options, progress=progress)
                 except Cancelled:
@@ -543,44 +530,6 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             widget.enabled = not running
         if not running:
             self._onParameterNodeModified()
-
-    def _ensureScikitLearn(self) -> bool:
-        """Make sure scikit-learn can be imported, installing it with the user's consent; False if it cannot."""
-        requirementsFile = self.resourcePath("requirements.txt")
-        try:
-            import slicer.packaging as packaging  # Slicer 5.12 and later
-        except ImportError:
-            packaging = None
-        if packaging is not None and hasattr(packaging, "pip_ensure"):
-            try:
-                # Asks, then installs with its own progress dialog.
-                packaging.pip_ensure(packaging.load_requirements(requirementsFile), requester="IsoSimilarityTF")
-            except RuntimeError as error:  # the user declined
-                logging.info(f"scikit-learn not installed: {error}")
-                return False
-            return IsoSimilarityTFLogic.scikitLearnAvailable()
-        if IsoSimilarityTFLogic.scikitLearnAvailable():
-            return True
-        if slicer.app.testingEnabled():
-            logging.info("Testing mode: not installing scikit-learn")
-            return False
-        requirements = IsoSimilarityTFLogic.requirements(requirementsFile)
-        if not slicer.util.confirmOkCancelDisplay(
-            _(
-                "This module needs the Python package scikit-learn, which Slicer does not include.\n\n"
-                "Install it now ({requirements})? It is downloaded from the Python Package Index; "
-                "this can take a minute."
-            ).format(requirements=", ".join(requirements)),
-            windowTitle=_("Install Python packages"),
-        ):
-            return False
-        # Slicer 5.8 and 5.10 install without a progress dialog: say what is happening before it blocks.
-        self.addLog(_("Installing scikit-learn... Slicer does not respond until it is done."))
-        with slicer.util.tryWithErrorDisplay(_("Failed to install scikit-learn."), waitCursor=True):
-            slicer.util.pip_install(" ".join(requirements))
-        available = IsoSimilarityTFLogic.scikitLearnAvailable()
-        self.addLog(_("scikit-learn is installed.") if available else _("scikit-learn could not be installed."))
-        return available
 
     def addLog(self, text: str) -> None:
         """Show a message under the Apply button."""
@@ -980,21 +929,6 @@ class IsoSimilarityTFLogic(ScriptedLoadableModuleLogic, DesignSession):
             "gradient_opacity": parameterNode.gradientOpacity,
         }
 
-    @staticmethod
-    def scikitLearnAvailable() -> bool:
-        import importlib
-        import importlib.util
-
-        importlib.invalidate_caches()
-        return importlib.util.find_spec("sklearn") is not None
-
-    @staticmethod
-    def requirements(path: str) -> list:
-        """Requirement strings of a requirements.txt file (comments, blank lines and pip options skipped)."""
-        with open(path, encoding="utf-8") as file:
-            lines = [line.split("#", 1)[0].strip() for line in file]
-        return [line for line in lines if line and not line.startswith("-")]
-
     # Reports ---------------------------------------------------------------------------------------------------------
     @staticmethod
     def similarityImage(design, size: Optional[int] = None) -> Optional[np.ndarray]:
@@ -1077,11 +1011,7 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
         """Run one check of IsoSimilarityTFLib.selftest with this module's logic."""
         from IsoSimilarityTFLib import selftest
 
-        check, needsScikitLearn = selftest.CHECKS[name]
-        if needsScikitLearn and not IsoSimilarityTFLogic.scikitLearnAvailable():
-            self.delayDisplay("scikit-learn is not installed: check skipped")
-            return
-        check(IsoSimilarityTFLogic, self._addVolume)
+        selftest.CHECKS[name](IsoSimilarityTFLogic, self._addVolume)
 
     # Tests -------------------------------------------------------------------------------------------------------
     def test_IsoSimilarityTF_options(self):
@@ -1103,7 +1033,6 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
         self.assertEqual(options["preference"], -2.5)
         with self.assertRaises(ValueError):  # the wrapper validates every write
             parameterNode.levels = OPTIONS["levels"].maximum + 1
-        self.assertEqual(logic.requirements(resourcePath("requirements.txt"))[0].split(">")[0], "scikit-learn")
         self.assertIn(logic.defaultExportExtension(), (".vp", ".vp.json"))
         self.delayDisplay("Test passed")
 

@@ -166,6 +166,29 @@ def test_cancel_from_progress(phantom):
         design_transfer_function(phantom.values, progress=cancel)
 
 
+def test_cancel_between_affinity_propagation_iterations(phantom):
+    """Slicer's in-process Apply cancels by raising from progress: in the clustering stage that stops affinity
+    propagation after the iteration that reported, not at the end of the stage."""
+
+    class Cancelled(Exception):
+        pass
+
+    reports = []
+
+    def cancel(stage, fraction, message):
+        reports.append((stage, message))
+        if stage == "clustering" and fraction > 0:  # an iteration's report, not the stage's start
+            raise Cancelled
+
+    # 512 bins: a report every 7 iterations (see design._clustering_progress).
+    with pytest.raises(Cancelled) as raised:
+        design_transfer_function(phantom.values, n_bins=512, progress=cancel)
+    stage, message = reports[-1]
+    # Iteration 7 of 200: mid-run, as convergence takes at least convergence_iter + 1 = 16 iterations.
+    assert stage == "clustering" and message.startswith("affinity propagation: iteration 7 of at most 200")
+    assert "affinity_propagation" in [frame.name for frame in raised.traceback]
+
+
 def test_unconverged_rules():
     grid = np.indices((20, 20, 20)).astype(float)
     r = np.sqrt(((grid - 10) ** 2).sum(axis=0))

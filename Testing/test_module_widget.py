@@ -153,7 +153,6 @@ def test_no_design_leaves_the_saved_detail_alone(panel, slicer_app):
 
 
 def test_apply_in_process_shows_the_design_and_cancel_changes_nothing(panel, slicer_app, module):
-    pytest.importorskip("sklearn")
     widget, volume = panel
     widget._onParameterNodeModified()
     options = {"n_bins": 32, "tissues": 1}

@@ -70,7 +70,7 @@ def test_rows_hold_tissues_and_their_classes():
 
 # Where an Apply runs -------------------------------------------------------------------------------------------------
 def test_small_designs_run_in_process_and_large_ones_in_a_child_process():
-    # The defaults (256 bins, 200 iterations) on usual volumes: in Slicer's process, no 3 s process start.
+    # The defaults (256 bins, 200 iterations) on usual volumes: in Slicer's process, no process start or file copies.
     for shape in [(64, 64, 64), (128, 128, 128), (256, 256, 256), (181, 217, 181), (108, 256, 256)]:
         assert runs_in_process(shape, {}), shape
     # A big CT, many bins (affinity propagation grows with bins squared), or long clustering: in a child process.

@@ -1,5 +1,5 @@
 """The design in a child process: same result as in-process, progress, errors, and Cancel within a second at every
-stage (clustering included, which scikit-learn cannot interrupt)."""
+stage (the child is killed, clustering included)."""
 
 import os
 import time

@@ -6,7 +6,8 @@ The pipeline, one module per step: :mod:`.quantize` (isovalue bins), :mod:`.cell
 opacities), :mod:`.transfer_function` (VTK objects and Slicer files), tied together by
 :func:`design_transfer_function`, whose options are the table in :mod:`.options` and whose errors are in
 :mod:`.errors`. :mod:`.mrml` puts a design into a Slicer scene, :mod:`.pictures` draws the similarity matrix.
-Needs numpy, scikit-learn (at clustering time) and VTK; never Qt or the Slicer application, so it runs headless.
+Needs only numpy and VTK, which Slicer ships (affinity propagation is its own, :mod:`.affinity_propagation`), and
+dask only when given a dask array; never Qt or the Slicer application, so it runs headless.
 """
 
 from .cells import octree_levels, unit_cell_intervals

@@ -172,16 +172,18 @@ class Cancelled(Exception):
 
 
 # Where an Apply runs -------------------------------------------------------------------------------------------------
-# In Slicer, a design in a child process (:mod:`.worker`) costs the start of PythonSlicer and the imports of numpy and
-# scikit-learn, about 3 s, on every Apply; in Slicer's own process the design runs on the main thread, which repaints
-# and honours Cancel only between progress reports. So a design runs in-process when it is expected to take less than
-# about a second, and in a child process otherwise. The cost model (seconds), measured with benchmarks/apply_cost.py
-# on a 2-core Xeon (numpy 2, scikit-learn 1.7; see docs/apply-cost.md):
+# In Slicer, a design in a child process (:mod:`.worker`) costs, on every Apply, starting PythonSlicer and importing
+# numpy and the library (0.15-0.26 s with plain Python here) and passing the volume and the design through files; in
+# Slicer's own process the design runs on the main thread, which repaints and honours Cancel only at progress reports
+# (between affinity propagation's iterations too), so Slicer stands still for the longest step between two reports.
+# So a design runs in-process when it is expected to take less than about a second, and in a child process otherwise.
+# The cost model (seconds), measured with benchmarks/apply_cost.py on shared 2-core VMs (numpy 2; see
+# docs/apply-cost.md):
 #: Quantization, similarity and classes: one pass each over the voxels (5.4 ns of them the similarity's cells).
 COST_PER_VOXEL_S = 12e-9
 #: Per octree level, the cumulative sums over the n_bins x n_bins overlap table.
 COST_PER_LEVEL_BIN2_S = 40e-9
-#: One affinity propagation iteration over the n_bins x n_bins similarity (scikit-learn).
+#: One affinity propagation iteration over the n_bins x n_bins similarity (3.3-7.6 ns measured, as scikit-learn's).
 COST_PER_ITERATION_BIN2_S = 7e-9
 #: Tissues (the intensity model fitted to the histogram, 1 to 8 tissues) and showing the design.
 COST_FIXED_S = 0.25

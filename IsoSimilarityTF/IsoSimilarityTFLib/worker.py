@@ -2,10 +2,12 @@
 
 Why a process. Slicer runs its Python on the Qt main thread, and while Qt waits for events the main thread keeps
 Python's global interpreter lock (CTK never turns on PythonQt's thread support, ``PythonQt::setEnableThreadSupport``),
-so a Python thread started from a module only moves while Python code runs on the main thread. And affinity
-propagation (scikit-learn) cannot be interrupted: a thread would run on until its stage ends. A process computes at
-full speed beside the application, and Cancel kills it, at any stage. This is how Slicer runs its own long computations
-(command-line modules run as processes and Cancel terminates them).
+so a Python thread started from a module only moves while Python code runs on the main thread. A design in Slicer's
+own process therefore runs on the main thread: it can be cancelled at each progress report (between affinity
+propagation's iterations too), but Slicer repaints only there and is otherwise frozen. That is fine for a design of
+under a second (:func:`.session.runs_in_process`); a longer one runs in a process, which computes at full speed beside
+the application while Slicer stays responsive, and Cancel kills it at once, at any stage. This is how Slicer runs its
+own long computations (command-line modules run as processes and Cancel terminates them).
 
 The parent (:class:`DesignProcess`) writes the voxels (``.npy``), the spacing and the options into a temporary
 folder and starts ``python -m IsoSimilarityTFLib.worker FOLDER``; the child (:func:`main`) runs
