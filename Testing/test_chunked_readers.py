@@ -33,7 +33,7 @@ def geometry_volume(values: np.ndarray) -> Volume:
 
 @pytest.mark.parametrize("name", ["v.nrrd", "v.nhdr", "v.mha", "v.mhd"])
 @pytest.mark.parametrize("dtype", [np.int16, np.uint8, np.float32])
-def test_raw_nrrd_and_metaimage_are_mapped_with_slicers_geometry(tmp_path: Path, name, dtype) -> None:
+def test_raw_nrrd_and_metaimage_are_read_lazily_with_slicers_geometry(tmp_path: Path, name, dtype) -> None:
     volume = geometry_volume(volume_values(dtype))
     path = tmp_path / name
     write_volume(volume, path, compress=False)
@@ -53,7 +53,40 @@ def test_raw_chunks_are_whole_planes_of_bounded_size(tmp_path: Path, monkeypatch
     np.testing.assert_array_equal(np.asarray(lazy), values)
 
 
-def test_compressed_files_are_not_mapped(tmp_path: Path) -> None:
+@pytest.mark.parametrize(
+    "key",
+    [
+        np.s_[:, :, :],
+        np.s_[::3, ::3, ::3],
+        np.s_[1:10:4, 2:9:2, 3:13:5],
+        np.s_[4:5, 8:9, :],
+        np.s_[2:2, :, :],
+    ],
+)
+def test_raw_reads_give_the_voxels_asked_for(tmp_path: Path, monkeypatch, key) -> None:
+    """Whole chunks, and a strided read folded into each chunk's read: only the planes kept are read."""
+    values = volume_values()
+    (tmp_path / "v.raw").write_bytes(b"head" + values.astype(">i2").tobytes())
+    monkeypatch.setattr(chunked_readers, "RAW_CHUNK_BYTES", 3 * SHAPE[1] * SHAPE[2] * 2)
+    lazy = chunked_readers.raw_volume(tmp_path / "v.raw", SHAPE, np.dtype(">i2"), offset=4)
+    np.testing.assert_array_equal(lazy[key].compute(), values[key])
+
+
+def test_a_missing_or_truncated_raw_file_is_a_read_error(tmp_path: Path) -> None:
+    header = "NRRD0004\ntype: int16\ndimension: 3\nsizes: 13 9 11\nencoding: raw\nendian: little\ndata file: v.raw\n"
+    (tmp_path / "v.nhdr").write_text(header)
+    with pytest.raises(ValueError, match=r"data file '.*v\.raw' does not exist"):
+        chunked_readers.read_chunked(tmp_path / "v.nhdr")
+    data = volume_values().astype("<i2").tobytes()
+    (tmp_path / "v.raw").write_bytes(data[:-1])
+    with pytest.raises(ValueError, match=f"truncated: {len(data)} bytes of voxel data expected, {len(data) - 1} found"):
+        chunked_readers.read_chunked(tmp_path / "v.nhdr")
+    lazy = chunked_readers.raw_volume(tmp_path / "v.raw", SHAPE, np.dtype("<i2"))  # a file cut short after opening
+    with pytest.raises(ValueError, match=r"ends before its last voxel \(truncated\)"):
+        lazy.compute()
+
+
+def test_compressed_files_are_not_read_lazily(tmp_path: Path) -> None:
     write_volume(geometry_volume(volume_values()), tmp_path / "v.nrrd", compress=True)
     assert chunked_readers.raw_layout(tmp_path / "v.nrrd") is None
     assert not chunked_readers.reads_chunked(tmp_path / "v.nrrd", 256)

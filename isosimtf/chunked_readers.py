@@ -1,4 +1,4 @@
-"""Volumes read lazily, as dask arrays: Zarr and OME-Zarr, TIFF stacks, and raw NRRD / MetaImage through a memory map.
+"""Volumes read lazily, as dask arrays: Zarr and OME-Zarr, TIFF stacks, and raw NRRD / MetaImage, a few planes a read.
 
 None of these readers loads the volume: each returns a :class:`~.volume_io.Volume` whose ``values`` are a
 ``dask.array`` of shape ``(K, J, I)`` (slowest axis first), read a row of chunks at a time by the design
@@ -10,7 +10,7 @@ None of these readers loads the volume: each returns a :class:`~.volume_io.Volum
 - TIFF: a multi-page file (``.tif``, ``.tiff``) or a folder of single-plane TIFF files (sorted by name), one page per
   plane along k, through ``tifffile``'s Zarr view; spacing 1.
 - NRRD (``.nrrd``, ``.nhdr``) and MetaImage (``.mha``, ``.mhd``) whose voxels are stored raw (uncompressed) in the
-  file after the header or in a detached data file: mapped into memory a few planes per chunk; geometry as Slicer
+  file after the header or in a detached data file: read from the file a few planes per chunk; geometry as Slicer
   reads it (LPS headers turned to RAS).
 
 Which inputs are read this way (:func:`reads_chunked`): Zarr and TIFF always (the in-memory readers do not know
@@ -30,7 +30,7 @@ from IsoSimilarityTFLib.memory import available_memory_bytes, design_memory_byte
 
 from .read_errors import cannot_read
 
-#: Bytes of one chunk of a memory-mapped raw volume (whole planes): a row of chunks is one chunk, read in one go.
+#: Bytes of one chunk of a raw volume (whole planes): a row of chunks is one chunk, read in one go.
 RAW_CHUNK_BYTES = 64 << 20
 
 _TIFF_SUFFIXES = (".tif", ".tiff")
@@ -86,7 +86,8 @@ def read_chunked(path: Path) -> Any:
     """Open ``path`` lazily (see the module docstring) as a :class:`~.volume_io.Volume` holding a dask array.
 
     Raises:
-        VolumeReadError: not a format read here, a compressed raw file, or not a 3-D scalar volume.
+        VolumeReadError: not a format read here, a compressed raw file, a raw file missing or truncated, or not a 3-D
+            scalar volume.
     """
     from .volume_io import Volume
 
@@ -98,16 +99,21 @@ def read_chunked(path: Path) -> Any:
         return Volume(_tiff_volume(path), name=name)
     layout = raw_layout(path)
     if layout is None:
-        raise cannot_read(path, "its voxels are not stored raw (uncompressed): it cannot be mapped into memory")
+        raise cannot_read(
+            path, "its voxels are not stored raw (uncompressed): it cannot be read a few planes at a time"
+        )
     data, shape, dtype, offset, ijk_to_ras = layout
+    if not data.is_file():
+        raise cannot_read(path, f"its data file '{data}' does not exist")
+    expected = int(np.prod(shape, dtype=np.float64)) * dtype.itemsize
+    found = data.stat().st_size - offset
+    if found < expected:
+        raise cannot_read(path, f"it is truncated: {expected} bytes of voxel data expected, {max(found, 0)} found")
     return Volume.from_ijk_to_ras(raw_volume(data, shape, dtype, offset), ijk_to_ras, name)
 
 
 def raw_volume(data: Path, shape: tuple[int, int, int], dtype: np.dtype, offset: int = 0) -> Any:
     """A raw volume file as a dask array of chunks of whole planes (about :data:`RAW_CHUNK_BYTES` each).
-
-    Each chunk maps the file anew and copies its planes out: the task graph holds the path, never the data, so it
-    also runs on a distributed cluster whose workers see the same file system.
 
     Args:
         data: the file; shape: ``(K, J, I)`` voxels, I fastest in the file; dtype: with its byte order; offset: bytes
@@ -117,15 +123,58 @@ def raw_volume(data: Path, shape: tuple[int, int, int], dtype: np.dtype, offset:
 
     plane_bytes = shape[1] * shape[2] * dtype.itemsize
     planes = max(1, min(shape[0], RAW_CHUNK_BYTES // plane_bytes))
-    chunks = (tuple(min(planes, shape[0] - k) for k in range(0, shape[0], planes)), (shape[1],), (shape[2],))
+    # from_array, not map_blocks: dask folds a later slicing (e.g. every s-th voxel) into each chunk's read, so only
+    # the planes kept are read.
+    return da.from_array(
+        _RawFile(data, shape, dtype, offset),
+        chunks=(planes, shape[1], shape[2]),
+        lock=False,
+        meta=np.empty((0, 0, 0), dtype=dtype),
+    )
 
-    def read(block_info=None) -> np.ndarray:
-        first, stop = block_info[None]["array-location"][0]
-        start = offset + first * plane_bytes
-        mapped = np.memmap(data, dtype=dtype, mode="r", offset=start, shape=(stop - first, *shape[1:]))
-        return np.array(mapped)  # a copy: the map is closed with the chunk
 
-    return da.map_blocks(read, chunks=chunks, dtype=dtype, meta=np.empty((0, 0, 0), dtype=dtype))
+class _RawFile:
+    """The voxels of a raw file as an array-like that dask reads from, one plane at a time.
+
+    It holds the path, never the data, so a task graph holding it also runs on a distributed cluster whose workers
+    see the same file system. A read with a step along k reads only the planes kept, each in one sequential read of
+    the rows it spans (a memory map read the whole file for every 4th plane: the kernel's read-ahead on page faults).
+    """
+
+    def __init__(self, data: Path, shape: tuple[int, int, int], dtype: np.dtype, offset: int) -> None:
+        self.data, self.shape, self.dtype, self.offset = data, shape, dtype, offset
+        self.ndim = len(shape)
+
+    def __getitem__(self, key: tuple[slice, slice, slice]) -> np.ndarray:
+        """The voxels ``[k, j, i]`` of three slices (what dask asks for), in the file's dtype."""
+        planes, rows, columns = (range(*axis.indices(n)) for axis, n in zip(key, self.shape))
+        out = np.empty((len(planes), len(rows), len(columns)), dtype=self.dtype)
+        if not out.size:
+            return out
+        row_bytes = self.shape[2] * self.dtype.itemsize
+        whole_rows = rows.step == 1 and len(columns) == self.shape[2]  # read straight into the result
+        block = None if whole_rows else np.empty((rows[-1] - rows[0] + 1, self.shape[2]), dtype=self.dtype)
+        with open(self.data, "rb", buffering=0) as file:
+            for n, k in enumerate(planes):
+                file.seek(self.offset + (k * self.shape[1] + rows[0]) * row_bytes)
+                _read_fully(file, out[n] if whole_rows else block, self.data)
+                if block is not None:
+                    out[n] = block[:: rows.step, columns.start : columns.stop : columns.step]
+        return out
+
+    def __dask_tokenize__(self) -> tuple:
+        # The same file and layout (and not rewritten since) is the same array.
+        return str(self.data), self.data.stat().st_mtime_ns, self.shape, self.dtype.str, self.offset
+
+
+def _read_fully(file: Any, target: np.ndarray, path: Path) -> None:
+    """Fill the C-contiguous ``target`` from ``file``'s position (a raw read may return fewer bytes than asked)."""
+    view = memoryview(target.reshape(-1).view(np.uint8))  # bytes, whatever the byte order
+    while view:
+        count = file.readinto(view)
+        if not count:
+            raise cannot_read(path, "it ends before its last voxel (truncated)")
+        view = view[count:]
 
 
 def raw_layout(path: Path) -> Optional[tuple[Path, tuple[int, int, int], np.dtype, int, np.ndarray]]:
