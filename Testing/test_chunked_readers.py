@@ -1,5 +1,6 @@
 """Volumes read lazily (Zarr, OME-Zarr, TIFF stacks, raw NRRD / MetaImage) give the values and geometry of the
-in-memory readers, and ``isosimtf`` designs them out of core exactly as it designs the same volume in memory."""
+in-memory readers, ``isosimtf`` designs them out of core exactly as it designs the same volume in memory, and pictures
+them from a preview (every s-th voxel) without writing a scene or segmentation that would hold only the preview."""
 
 import json
 from pathlib import Path
@@ -10,7 +11,9 @@ from volume_writers import write_volume
 
 from IsoSimilarityTFLib import memory
 from IsoSimilarityTFLib.chunked import is_dask_array
-from isosimtf import chunked_readers, cli
+from isosimtf import chunked_readers, cli, run
+from isosimtf.phantom import head_phantom
+from isosimtf.rendering import slicer_core_available
 from isosimtf.volume_io import Volume, read_volume
 
 zarr = pytest.importorskip("zarr")
@@ -33,7 +36,7 @@ def geometry_volume(values: np.ndarray) -> Volume:
 
 @pytest.mark.parametrize("name", ["v.nrrd", "v.nhdr", "v.mha", "v.mhd"])
 @pytest.mark.parametrize("dtype", [np.int16, np.uint8, np.float32])
-def test_raw_nrrd_and_metaimage_are_mapped_with_slicers_geometry(tmp_path: Path, name, dtype) -> None:
+def test_raw_nrrd_and_metaimage_are_read_lazily_with_slicers_geometry(tmp_path: Path, name, dtype) -> None:
     volume = geometry_volume(volume_values(dtype))
     path = tmp_path / name
     write_volume(volume, path, compress=False)
@@ -53,7 +56,76 @@ def test_raw_chunks_are_whole_planes_of_bounded_size(tmp_path: Path, monkeypatch
     np.testing.assert_array_equal(np.asarray(lazy), values)
 
 
-def test_compressed_files_are_not_mapped(tmp_path: Path) -> None:
+@pytest.mark.parametrize(
+    "key",
+    [
+        np.s_[:, :, :],
+        np.s_[::3, ::3, ::3],
+        np.s_[1:10:4, 2:9:2, 3:13:5],
+        np.s_[4:5, 8:9, :],
+        np.s_[2:2, :, :],
+    ],
+)
+def test_raw_reads_give_the_voxels_asked_for(tmp_path: Path, monkeypatch, key) -> None:
+    """Whole chunks, and a strided read folded into each chunk's read: only the planes kept are read."""
+    values = volume_values()
+    (tmp_path / "v.raw").write_bytes(b"head" + values.astype(">i2").tobytes())
+    monkeypatch.setattr(chunked_readers, "RAW_CHUNK_BYTES", 3 * SHAPE[1] * SHAPE[2] * 2)
+    lazy = chunked_readers.raw_volume(tmp_path / "v.raw", SHAPE, np.dtype(">i2"), offset=4)
+    np.testing.assert_array_equal(lazy[key].compute(), values[key])
+
+
+def test_a_missing_or_truncated_raw_file_is_a_read_error(tmp_path: Path) -> None:
+    header = "NRRD0004\ntype: int16\ndimension: 3\nsizes: 13 9 11\nencoding: raw\nendian: little\ndata file: v.raw\n"
+    (tmp_path / "v.nhdr").write_text(header)
+    with pytest.raises(ValueError, match=r"data file '.*v\.raw' does not exist"):
+        chunked_readers.read_chunked(tmp_path / "v.nhdr")
+    data = volume_values().astype("<i2").tobytes()
+    (tmp_path / "v.raw").write_bytes(data[:-1])
+    with pytest.raises(ValueError, match=f"truncated: {len(data)} bytes of voxel data expected, {len(data) - 1} found"):
+        chunked_readers.read_chunked(tmp_path / "v.nhdr")
+    lazy = chunked_readers.raw_volume(tmp_path / "v.raw", SHAPE, np.dtype("<i2"))  # a file cut short after opening
+    with pytest.raises(ValueError, match=r"ends before its last voxel \(truncated\)"):
+        lazy.compute()
+
+
+@pytest.mark.parametrize(
+    ("shape", "limit", "step"),
+    [
+        ((11, 9, 13), 1 << 25, 1),
+        ((1024, 1024, 1024), 1 << 25, 4),  # 256^3
+        ((3200, 2048, 2048), 1 << 25, 8),  # 400 x 256 x 256 (7 would give 458 x 293 x 293, over 2^25)
+        ((11, 9, 13), 100, 3),  # 4 x 3 x 5 = 60; step 2 gives 6 x 5 x 7 = 210
+        ((5, 5, 5), 1, 5),
+    ],
+)
+def test_the_preview_step_is_the_smallest_that_fits(shape, limit, step) -> None:
+    assert chunked_readers.preview_step(shape, limit) == step
+
+
+@pytest.mark.parametrize("name", ["v.nhdr", "v.mha", "v.zarr", "v.tif"])
+def test_the_preview_is_every_step_th_voxel_in_the_same_space(tmp_path: Path, name) -> None:
+    values = volume_values(np.uint16)
+    volume = geometry_volume(values)
+    path = tmp_path / name
+    if name == "v.zarr":
+        zarr.create_array(str(path), data=values, chunks=(4, 5, 13))
+    elif name == "v.tif":
+        tifffile.imwrite(path, values)
+    else:
+        write_volume(volume, path, compress=False)
+    lazy = chunked_readers.read_chunked(path)
+    preview = chunked_readers.read_preview(lazy, 3)
+    assert isinstance(preview.values, np.ndarray)
+    np.testing.assert_array_equal(preview.values, values[::3, ::3, ::3])
+    assert preview.shape == (4, 3, 5)
+    np.testing.assert_allclose(preview.spacing, np.asarray(lazy.spacing) * 3)
+    # Preview voxel (i, j, k) lies where input voxel (3i, 3j, 3k) lies.
+    corner = np.array([4, 2, 3, 1.0])
+    np.testing.assert_allclose(preview.ijk_to_ras() @ corner, lazy.ijk_to_ras() @ (corner * [3, 3, 3, 1]), atol=1e-9)
+
+
+def test_compressed_files_are_not_read_lazily(tmp_path: Path) -> None:
     write_volume(geometry_volume(volume_values()), tmp_path / "v.nrrd", compress=True)
     assert chunked_readers.raw_layout(tmp_path / "v.nrrd") is None
     assert not chunked_readers.reads_chunked(tmp_path / "v.nrrd", 256)
@@ -116,11 +188,11 @@ def test_isosimtf_designs_a_zarr_volume_as_the_same_volume_in_memory(tmp_path: P
     np.save(tmp_path / "v.npy", values)
     zarr.create_array(str(tmp_path / "v.zarr"), data=values, chunks=(3, 5, 13))
     assert cli.main([str(tmp_path / "v.npy"), "-o", str(tmp_path / "memory"), "--no-render", "-q"]) == 0
-    assert cli.main([str(tmp_path / "v.zarr"), "-o", str(tmp_path / "lazy"), "-q"]) == 0
-    assert "larger than memory (read lazily)" in capsys.readouterr().err  # rendering skipped, with a warning
+    assert cli.main([str(tmp_path / "v.zarr"), "-o", str(tmp_path / "lazy"), "--no-render", "-q"]) == 0
+    assert not capsys.readouterr().err
     assert _classes_json(tmp_path / "lazy") == _classes_json(tmp_path / "memory")
     info = json.loads((tmp_path / "lazy" / "classes.json").read_text())["input"]
-    assert info["read_lazily"] and info["value_min"] is None
+    assert info["read_lazily"] and info["value_min"] is None and info["preview"] is None
     np.testing.assert_array_equal(
         np.load(tmp_path / "lazy" / "similarity.npy"), np.load(tmp_path / "memory" / "similarity.npy")
     )
@@ -149,3 +221,71 @@ def test_unreachable_scheduler_is_a_usage_error(tmp_path: Path, capsys) -> None:
     status = cli.main([str(tmp_path / "v.zarr"), "-o", str(tmp_path / "out"), "--no-render", "--scheduler",
                        "tcp://127.0.0.1:9"])  # fmt: skip
     assert status == cli.EXIT_USAGE and "no dask scheduler answers" in capsys.readouterr().err
+
+
+needs_slicer = pytest.mark.skipif(not slicer_core_available(), reason="slicer-core is not installed")
+
+PREVIEW_SKIPPED = ("classes.seg.nrrd", "scene/scene.mrml")
+
+
+def _micro_ct(tmp_path: Path, monkeypatch) -> Path:
+    """The 32^3 head phantom as a raw NRRD that isosimtf reads lazily (as if larger than half the memory)."""
+    phantom = head_phantom(32, seed=2)
+    path = tmp_path / "micro-ct.nhdr"
+    write_volume(Volume(phantom.values, (0.25, 0.25, 0.5), (1.0, -2.0, 3.0), name="micro-ct"), path, compress=False)
+    monkeypatch.setattr(chunked_readers, "available_memory_bytes", lambda: 1 << 16)
+    return path
+
+
+@needs_slicer
+def test_a_lazy_volume_is_pictured_from_a_preview(tmp_path: Path, monkeypatch, capfd) -> None:
+    """Pictures from every 2nd voxel, said in one warning that also names the files skipped; the stage counter of a
+    rendered run from its first line; the scene and segmentation of a previous run into the folder are removed."""
+    path = _micro_ct(tmp_path, monkeypatch)
+    outdir = tmp_path / "out"
+    in_memory = tmp_path / "micro-ct.npy"
+    np.save(in_memory, head_phantom(32, seed=2).values)
+    assert cli.main([str(in_memory), "-o", str(outdir), "--size", "64", "-q"]) == 0
+    assert all((outdir / name).is_file() for name in PREVIEW_SKIPPED)  # an earlier run's, in memory
+    capfd.readouterr()
+
+    monkeypatch.setattr(chunked_readers, "PREVIEW_VOXELS", 16**3)
+    assert cli.main([str(path), "-o", str(outdir), "--size", "64"]) == 0
+    err = capfd.readouterr().err
+    lines = err.splitlines()
+    stages = [line for line in lines if line.startswith("[")]
+    assert [line.split()[0] for line in stages] == [f"[{i}/{len(run.STAGES)}]" for i in range(1, len(run.STAGES) + 1)]
+    assert [line.split()[1] for line in stages] == list(run.STAGES)
+    assert "from every 2nd voxel" in stages[-1]
+    preview_lines = [line for line in lines if "preview" in line]
+    assert len(preview_lines) == 1, err
+    assert "every 2nd voxel along each axis (16 x 16 x 16 voxels of 0.5 x 0.5 x 1 mm)" in preview_lines[0]
+    assert all(name.split("/")[0] in preview_lines[0] for name in PREVIEW_SKIPPED)
+    removed = [line for line in lines if "of a previous run that this run did not write" in line]
+    assert len(removed) == 1 and all(name in removed[0] for name in PREVIEW_SKIPPED)  # none of another run left
+
+    document = json.loads((outdir / "classes.json").read_text())
+    assert document["input"]["read_lazily"] and document["input"]["shape"] == [32, 32, 32]
+    preview = document["input"]["preview"]
+    assert {k: preview[k] for k in ("step", "shape", "dimensions", "spacing")} == {
+        "step": 2, "shape": [16, 16, 16], "dimensions": [16, 16, 16], "spacing": [0.5, 0.5, 1.0]
+    }  # fmt: skip
+    assert preview["read_s"] >= 0
+    assert {"render_png", "classes_png"} <= set(document["outputs"])
+    for name in ("render.png", "classes.png"):
+        assert name in document["written"] and (outdir / name).stat().st_size > 0
+    for name in PREVIEW_SKIPPED:
+        assert name not in document["written"] and not (outdir / name).exists()
+    assert document["timings_s"]["render"] > 0
+
+
+@needs_slicer
+def test_a_lazy_volume_small_enough_is_pictured_whole(tmp_path: Path, monkeypatch, capfd) -> None:
+    """A preview of step 1 is the volume itself: every output is written, and no warning is given."""
+    path = _micro_ct(tmp_path, monkeypatch)
+    assert cli.main([str(path), "-o", str(tmp_path / "out"), "--size", "64", "-q"]) == 0
+    assert not capfd.readouterr().err
+    document = json.loads((tmp_path / "out" / "classes.json").read_text())
+    assert document["input"]["read_lazily"] and document["input"]["preview"]["step"] == 1
+    for name in ("render.png", "classes.png", *PREVIEW_SKIPPED):
+        assert (tmp_path / "out" / name).is_file(), name

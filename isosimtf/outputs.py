@@ -5,6 +5,9 @@ The folder holds ``similarity.npy``, ``similarity.png``, ``classes.json``, ``tra
 by Slicer's own volume rendering, headless), ``classes.png`` (one small render per shown tissue, labelled) and
 ``scene/scene.mrml`` (a Slicer scene with the volume and the transfer function, to open in Slicer) and
 ``classes.seg.nrrd`` (one segment per shown class, Slicer's segmentation file).
+
+A volume read lazily (larger than memory) is pictured from a :class:`Preview`, every s-th voxel of it, with the
+design of the whole volume; the scene and the segmentation, which would hold only the preview, are then not written.
 """
 
 import json
@@ -49,19 +52,46 @@ MIN_SIZE = 32
 MAX_SIZE = 4096
 
 
+@dataclass(frozen=True)
+class Preview:
+    """The in-memory volume the pictures of a volume read lazily are rendered from: every ``step``-th voxel of it.
+
+    Attributes:
+        volume: the preview, shape ``ceil((K, J, I) / step)``, spacing ``step`` times the input's, same origin and
+            directions (see :func:`.chunked_readers.read_preview`).
+        step: voxels of the input per preview voxel along each axis; 1: the whole volume, read into memory.
+        read_s: seconds its read took.
+    """
+
+    volume: Volume
+    step: int
+    read_s: float
+
+    def document(self) -> dict:
+        """The ``input.preview`` entry of ``classes.json``."""
+        return {
+            "step": self.step,
+            "shape": list(self.volume.shape),
+            "dimensions": list(self.volume.shape[::-1]),
+            "spacing": [float(s) for s in self.volume.spacing],
+            "read_s": self.read_s,
+        }
+
+
 @dataclass
 class RunResult:
     """What one run produced.
 
     Attributes:
         design: the transfer function design.
-        volume: the input volume.
-        info: the ``input`` entry of ``classes.json``.
+        volume: the input volume (its values a dask array when read lazily).
+        info: the ``input`` entry of ``classes.json`` (without ``preview``, added from :attr:`preview`).
         outdir: the output folder (absolute).
         files: output role -> path of each file written (see :data:`OUTPUT_FILES`).
         scene_files: every file of the saved Slicer scene (scene.mrml and its data files).
         timings_s: seconds per stage: load, quantize, similarity, clustering, classes, write, render, total.
         warnings: warning lines given during the run.
+        preview: what the pictures of a volume read lazily are rendered from; None for a volume in memory.
     """
 
     design: TransferFunctionDesign
@@ -72,6 +102,17 @@ class RunResult:
     scene_files: list[Path] = field(default_factory=list)
     timings_s: dict[str, float] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    preview: Optional[Preview] = None
+
+    @property
+    def pictured(self) -> Volume:
+        """The volume the pictures show: the preview, if any, else the input."""
+        return self.volume if self.preview is None else self.preview.volume
+
+    @property
+    def full_resolution(self) -> bool:
+        """Whether the pictured volume is the whole input: only then are the scene and the segmentation written."""
+        return self.preview is None or self.preview.step == 1
 
     def document(self) -> dict:
         """The ``classes.json`` content: the design's document plus input, tool and output information."""
@@ -79,7 +120,7 @@ class RunResult:
 
         document = self.design.to_dict()
         document["timings_s"] = dict(self.timings_s)
-        document["input"] = self.info
+        document["input"] = {**self.info, "preview": None if self.preview is None else self.preview.document()}
         document["tool"] = {"name": "isosimtf", "version": __version__}
         document["outputs"] = {role: path.relative_to(self.outdir).as_posix() for role, path in self.files.items()}
         # Every file this run wrote: the next run into this folder removes those it does not write again.
@@ -159,7 +200,8 @@ def render_outputs(
     with a small margin) and each tissue tile shows ``design.solo_tissue(tissue)`` written into the same property node
     in place; only then does the window grow to ``size`` for render.png, seen from the same camera: every ray cast
     at full size is one render.png keeps. The scene is saved after solo mode is left, so it shows the full transfer
-    function as in render.png.
+    function as in render.png. A volume read lazily is pictured from ``result.preview``; unless the preview is the
+    whole volume (step 1), the scene and classes.seg.nrrd, which would hold only the preview, are not written.
 
     Args:
         headless: a new, empty :func:`open_headless` to draw in (the caller closes it); None: one with the defaults,
@@ -169,7 +211,7 @@ def render_outputs(
 
     from .rendering import write_png
 
-    design, volume, outdir = result.design, result.volume, result.outdir
+    design, volume, outdir = result.design, result.pictured, result.outdir
     if headless is None:
         with open_headless(size) as headless:
             render_outputs(result, view=view, size=size, progress=progress, headless=headless)
@@ -193,6 +235,8 @@ def render_outputs(
     path = outdir / OUTPUT_FILES["render_png"]
     write_png(headless.render(view=None, reset_camera=False), path)
     result.files["render_png"] = path
+    if not result.full_resolution:
+        return
 
     if progress is not None:
         progress.update("classes.seg.nrrd")

@@ -3,7 +3,8 @@
 Importing slicer-core and opening the headless 3D view take about a second, nearly all of it holding the GIL, so a
 thread cannot overlap them with the design (it stalled the design's pure-Python stages instead). A process started
 when the run starts does that on the machine's other core while this one reads the volume and designs; it then
-receives the run (volume and design) and runs :func:`.outputs.render_outputs`, as a run in one process would.
+receives the run (volume and design) and runs :func:`.outputs.render_outputs`, as a run in one process would. Of a
+volume read lazily it receives only the in-memory preview the pictures are made from, never the dask array.
 
 The child is ``python -m isosimtf.render_process``, a fresh interpreter: not ``multiprocessing``, whose ``spawn``
 would run the caller's main script again in the child, and not ``fork``, unsafe in a process holding threads. Messages
@@ -21,6 +22,7 @@ import signal
 import subprocess
 import sys
 import traceback
+from dataclasses import replace
 from typing import Any, BinaryIO
 
 from IsoSimilarityTFLib.errors import RenderError
@@ -62,8 +64,10 @@ class RenderProcess:
         Raises:
             RenderError: the child failed (its one-line reason) or ended without a word.
         """
+        # The pictured volume stands in for the input: a lazy one would be read whole by the child.
+        job = result if result.preview is None else replace(result, volume=result.preview.volume)
         try:
-            _send(self._process.stdin, (result, view, size))
+            _send(self._process.stdin, (job, view, size))
             while True:
                 reply = pickle.load(self._replies)
                 if reply[0] == _PROGRESS and progress is not None:

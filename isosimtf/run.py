@@ -11,6 +11,7 @@ from IsoSimilarityTFLib.design import design_transfer_function
 from IsoSimilarityTFLib.errors import RenderError, UsageError
 from IsoSimilarityTFLib.options import DEFAULT_OPTIONS
 
+from .chunked_readers import preview_step, read_preview
 from .console import ProgressPrinter
 from .inputs import DEFAULT_PHANTOM_SIZE, PathLike, input_info, load_input
 from .output_folder import check_output_path, create_output_folder, previous_outputs, remove_stale
@@ -21,6 +22,7 @@ from .outputs import (
     DEFAULT_VIEW,
     MAX_SIZE,
     MIN_SIZE,
+    Preview,
     RunResult,
     write_classes_json,
     write_data_files,
@@ -79,8 +81,10 @@ def run(
         source: a volume file, a DICOM folder, or ``"phantom"``.
         outdir: the output folder (created when missing).
         options: design options (see ``IsoSimilarityTFLib.options.OPTIONS``).
-        render: also write render.png, classes.png and the scene (needs ``slicer-core``; skipped with a warning
-            when it is missing).
+        render: also write render.png, classes.png, the scene and classes.seg.nrrd (needs ``slicer-core``; skipped
+            with a warning when it is missing). A volume read lazily is pictured from a preview, every s-th voxel of
+            it (see :func:`.chunked_readers.preview_step`), and its scene and segmentation are skipped with a warning
+            unless the preview is the whole volume.
         view: camera direction (see ``VIEW_DIRECTIONS``).
         size: render.png side in pixels (class tiles are half of it).
         phantom_size, seed: voxels per axis and seed of the phantom.
@@ -118,7 +122,7 @@ def run(
         render = False
     if progress is None:
         progress = ProgressPrinter(len(STAGES), quiet=True)
-    progress.total = len(STAGES) if render else len(STAGES) - 1
+    progress.total = len(STAGES) if render else len(STAGES) - 1  # known before reading: it never changes mid-run
     path = check_output_path(outdir)
     previous = previous_outputs(path)
 
@@ -133,9 +137,9 @@ def run(
         info = input_info(source, volume)
         for message in _input_warnings(info, n_bins):
             warning(message)
-        if render and info["read_lazily"]:
-            warning("the volume is larger than memory (read lazily): render.png, classes.png and the scene are skipped")
-            render, progress.total = False, len(STAGES) - 1
+        step = preview_step(volume.shape) if render and info["read_lazily"] else None
+        if step is not None and step > 1:
+            warning(_preview_warning(volume.shape, volume.spacing, step))
 
         design = design_transfer_function(volume.values, volume.spacing, progress=progress.design_callback, **options)
         timings.update(design.timings_s)
@@ -152,8 +156,9 @@ def run(
         try:
             if render:
                 start = time.perf_counter()
-                progress.stage("render", "(Slicer volume rendering, headless)")
-                _render(renderer, result, view=view, size=size, progress=progress)
+                detail = f", from every {_ordinal(step)} voxel" if step is not None and step > 1 else ""
+                progress.stage("render", f"(Slicer volume rendering, headless{detail})")
+                _render(renderer, result, step, view=view, size=size, progress=progress)
                 timings["render"] = time.perf_counter() - start
         finally:
             removed = remove_stale(path, previous, result.written())
@@ -167,15 +172,50 @@ def run(
     return result
 
 
-def _render(renderer: RenderProcess, result: RunResult, *, view: str, size: int, progress: ProgressPrinter) -> None:
-    """The render stage: ``renderer`` makes the pictures and the scene; a failure is one :class:`RenderError` line."""
+def _render(
+    renderer: RenderProcess,
+    result: RunResult,
+    preview_step: Optional[int],
+    *,
+    view: str,
+    size: int,
+    progress: ProgressPrinter,
+) -> None:
+    """The render stage: ``renderer`` makes the pictures and the scene; a failure is one :class:`RenderError` line.
+
+    Args:
+        preview_step: for a volume read lazily, the step of the preview read first (into ``result.preview``) and
+            pictured; None for a volume in memory.
+    """
     try:
+        if preview_step is not None:
+            progress.update(f"reading every {_ordinal(preview_step)} voxel" if preview_step > 1 else "reading")
+            start = time.perf_counter()
+            preview = read_preview(result.volume, preview_step)
+            result.preview = Preview(preview, preview_step, time.perf_counter() - start)
         renderer.render(result, view=view, size=size, progress=progress)
     except (RuntimeError, OSError, ValueError) as error:
         raise RenderError(
             f"rendering failed ({error}); the other outputs are in '{result.outdir}' "
             "(use --no-render to skip rendering)"
         ) from None
+
+
+def _preview_warning(shape: tuple[int, int, int], spacing: tuple[float, float, float], step: int) -> str:
+    """The one line saying that the pictures come from a preview, and what is not written because of it."""
+    dims = " x ".join(str(-(-n // step)) for n in shape[::-1])
+    mm = " x ".join(f"{s * step:.3g}" for s in spacing)
+    return (
+        f"the volume is read lazily (out of core): render.png and classes.png are rendered from a preview, every "
+        f"{_ordinal(step)} voxel along each axis ({dims} voxels of {mm} mm), with the transfer function designed on "
+        "every voxel; the scene and classes.seg.nrrd are skipped (they would hold only the preview)"
+    )
+
+
+def _ordinal(number: int) -> str:
+    """``"2nd"``, ``"3rd"``, ``"4th"``, ``"11th"``, ``"21st"``."""
+    suffix = "th" if 10 <= number % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(number % 10, "th")
+    return f"{number}{suffix}"
 
 
 def _input_warnings(info: dict, n_bins: int) -> list[str]:
