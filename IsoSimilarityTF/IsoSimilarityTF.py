@@ -138,7 +138,7 @@ class IsoSimilarityTFParameterNode:
 # Columns of the tissue tree (headers are set in the .ui file).
 COLUMN_NAME, COLUMN_COLOR, COLUMN_OPACITY, COLUMN_VISIBLE, COLUMN_SOLO, COLUMN_VOXELS, COLUMN_RANGE = range(7)
 
-# Share of the progress bar per stage of the engine (clustering gives no progress of its own).
+# Share of the progress bar per stage of the engine (affinity propagation reports its iterations).
 STAGE_PROGRESS = {
     "quantize": (0, 5),
     "similarity": (5, 55),

@@ -231,8 +231,8 @@ def _input_warnings(info: dict, n_bins: int) -> list[str]:
         )
     if n_bins > SLOW_CLUSTERING_BINS:
         warnings.append(
-            f"affinity propagation on {n_bins} isovalues may take many minutes with no progress shown (its cost grows "
-            f"with the square of --bins; the default is {DEFAULT_OPTIONS['n_bins']})"
+            f"affinity propagation on {n_bins} isovalues may take many minutes (its cost grows with the square of "
+            f"--bins; the default is {DEFAULT_OPTIONS['n_bins']})"
         )
     return warnings
 
