@@ -9,6 +9,8 @@ import pytest
 from IsoSimilarityTFLib import TransferFunctionDesign, design_transfer_function
 from IsoSimilarityTFLib.tissues import (
     TissueHierarchy,
+    _agglomerate,
+    _ward,
     choose_intensity_model,
     contiguous_assignment,
     fit_intensity_model,
@@ -161,6 +163,41 @@ def test_json_round_trip_keeps_tissues(design):
     broken = dict(data, tissues=data["tissues"][:-1])
     with pytest.raises(ValueError, match="not a valid"):
         TransferFunctionDesign.from_dict(broken)
+
+
+def naive_agglomeration(tissue, members, counts, similarity):
+    """Every neighbouring pair's cost recomputed before each merge: what the kept costs must reproduce."""
+
+    def cost(left, right):
+        same = tissue[left[-1]] == tissue[right[0]]
+        bins_l = np.concatenate([members[i] for i in left])
+        bins_r = np.concatenate([members[i] for i in right])
+        if same and similarity is not None:
+            return 0, 1.0 - float(similarity[np.ix_(bins_l, bins_r)].mean())
+        return (0 if same else 1), _ward(counts[bins_l], bins_l, counts[bins_r], bins_r)
+
+    groups, merged_at = [[i] for i in range(len(members))], []
+    while len(groups) > 1:
+        costs = [cost(a, b) for a, b in zip(groups[:-1], groups[1:])]
+        i = min(range(len(costs)), key=costs.__getitem__)
+        merged_at.append(groups[i + 1][0])
+        groups[i : i + 2] = [groups[i] + groups[i + 1]]
+    return merged_at
+
+
+@pytest.mark.parametrize("seed", range(30))
+def test_agglomeration_equals_recomputing_every_cost(seed):
+    rng = np.random.default_rng(seed)
+    n_classes = int(rng.integers(1, 60))
+    n_bins = n_classes + int(rng.integers(0, 100))
+    cuts = np.sort(rng.choice(np.arange(1, n_bins), n_classes - 1, replace=False))
+    members = np.split(np.arange(n_bins), cuts)
+    tissue = np.sort(rng.integers(0, int(rng.integers(1, 6)), n_classes))
+    counts = rng.integers(0, 1000, n_bins).astype(float)
+    similarity = rng.random((n_bins, n_bins))
+    similarity = np.round((similarity + similarity.T) / 2, int(rng.integers(1, 4)))  # rounded: many equal costs
+    for matrix in (similarity, None):
+        assert _agglomerate(tissue, members, counts, matrix) == naive_agglomeration(tissue, members, counts, matrix)
 
 
 def test_hierarchy_round_trip_and_validation():

@@ -324,26 +324,49 @@ def tissue_hierarchy(
     np.add.at(mass, position[labels[in_order]], posterior[in_order])
     tissue = contiguous_assignment(mass)
 
-    # Agglomerate neighbouring groups: first inside tissues (most similar pair first), then across (Ward).
     members = [np.flatnonzero(labels == c) for c in order]
-    groups = [[i] for i in range(n)]  # positions in `order`
-    merged_at: list[int] = []  # boundary position removed by each merge, in merge order
+    merged_at = _agglomerate(tissue, members, counts, similarity)
+    auto = len(np.unique(tissue))
+    return TissueHierarchy(order=tuple(int(c) for c in order), boundaries=tuple(merged_at[::-1]), auto=auto)
+
+
+def _agglomerate(
+    tissue: np.ndarray, members: list[np.ndarray], counts: np.ndarray, similarity: Optional[np.ndarray]
+) -> list[int]:
+    """Merge neighbouring classes, cheapest pair first, until one group is left; the order of the merges.
+
+    Pairs inside a tissue go first, the most similar first (``1 -`` their mean isovalue similarity), then pairs across
+    tissues by Ward's criterion (or everything by Ward's without a similarity); ties go to the lowest pair.
+
+    Args:
+        tissue: ``(n,)`` tissue of each class, classes in intensity order.
+        members: the bins of each class, in the same order.
+        counts: ``(n_bins,)`` voxels per bin.
+        similarity: ``(n_bins, n_bins)`` isovalue similarity, or None.
+
+    Returns:
+        For each merge in turn, the position of the class that starts the right-hand group (the boundary removed).
+    """
+
+    def merge_cost(left: list[int], right: list[int]) -> tuple[int, float]:
+        same = tissue[left[-1]] == tissue[right[0]]
+        bins_l = np.concatenate([members[i] for i in left])
+        bins_r = np.concatenate([members[i] for i in right])
+        if same and similarity is not None:
+            return 0, 1.0 - float(similarity[np.ix_(bins_l, bins_r)].mean())
+        return (0 if same else 1), _ward(counts[bins_l], bins_l, counts[bins_r], bins_r)
+
+    groups = [[i] for i in range(len(members))]  # positions in intensity order
+    costs = [merge_cost(left, right) for left, right in zip(groups[:-1], groups[1:])]  # costs[k]: groups k, k + 1
+    merged_at: list[int] = []
     while len(groups) > 1:
-        costs = []
-        for left, right in zip(groups[:-1], groups[1:]):
-            same = tissue[left[-1]] == tissue[right[0]]
-            bins_l = np.concatenate([members[i] for i in left])
-            bins_r = np.concatenate([members[i] for i in right])
-            if same and similarity is not None:
-                inner = 1.0 - float(similarity[np.ix_(bins_l, bins_r)].mean())
-            else:
-                inner = _ward(counts[bins_l], bins_l, counts[bins_r], bins_r)
-            costs.append((0 if same else 1, inner))
         i = min(range(len(costs)), key=costs.__getitem__)
         merged_at.append(groups[i + 1][0])
         groups[i : i + 2] = [groups[i] + groups[i + 1]]
-    auto = len(np.unique(tissue))
-    return TissueHierarchy(order=tuple(int(c) for c in order), boundaries=tuple(merged_at[::-1]), auto=auto)
+        # Only the merged group's two pairs change: the other costs are kept (thousands of classes at 4096 bins).
+        neighbours = [merge_cost(groups[k], groups[k + 1]) for k in (i - 1, i) if 0 <= k < len(groups) - 1]
+        costs[max(i - 1, 0) : i + 2] = neighbours
+    return merged_at
 
 
 def _ward(w_a: np.ndarray, x_a: np.ndarray, w_b: np.ndarray, x_b: np.ndarray) -> float:
