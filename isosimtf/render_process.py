@@ -8,9 +8,10 @@ volume read lazily it receives only the in-memory preview the pictures are made 
 
 The child is ``python -m isosimtf.render_process``, a fresh interpreter: not ``multiprocessing``, whose ``spawn``
 would run the caller's main script again in the child, and not ``fork``, unsafe in a process holding threads. Messages
-are pickled: jobs on the child's stdin, replies on a pipe of their own (the child's stdout stays free for anything a
-library prints). The child ends after its job, or when the parent closes its stdin (:meth:`RenderProcess.close`, or
-the parent ending).
+are pickled: jobs on the child's stdin, replies on its stdout, which the child keeps for them alone (anything a library
+writes to its standard output goes to stderr instead); plain pipes work on every platform (``pass_fds`` is POSIX
+only). The child ends after its job, or when the parent closes its stdin (:meth:`RenderProcess.close`, or the parent
+ending).
 """
 
 from __future__ import annotations
@@ -42,21 +43,14 @@ class RenderProcess:
     """
 
     def __init__(self, **window: Any) -> None:
-        replies, child_replies = os.pipe()
-        try:
-            self._process = subprocess.Popen(
-                [sys.executable, "-m", __name__, str(child_replies), json.dumps(window)],
-                stdin=subprocess.PIPE,
-                pass_fds=(child_replies,),
-                # The child imports what this process imported, from where it did.
-                env={**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)},
-            )
-        except BaseException:
-            os.close(replies)
-            raise
-        finally:
-            os.close(child_replies)  # the child holds its own copy: its end reads as EOF here once it exits
-        self._replies = os.fdopen(replies, "rb")
+        self._process = subprocess.Popen(
+            [sys.executable, "-m", __name__, json.dumps(window)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            # The child imports what this process imported, from where it did.
+            env={**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)},
+        )
+        self._replies = self._process.stdout
 
     def render(self, result: RunResult, *, view: str, size: int, progress: ProgressPrinter | None = None) -> None:
         """Render ``result`` in the child (see :func:`.outputs.render_outputs`) and record the files it wrote.
@@ -147,9 +141,12 @@ def _serve(replies: BinaryIO, window: dict) -> None:
 if __name__ == "__main__":
     # Ctrl+C reaches the whole process group: the parent handles it and closes the child's stdin.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # The replies take the standard output's file descriptor; what else would be written there goes to stderr.
+    reply_stream = os.fdopen(os.dup(sys.stdout.fileno()), "wb")
+    os.dup2(sys.stderr.fileno(), sys.stdout.fileno())
     try:
-        with os.fdopen(int(sys.argv[1]), "wb") as reply_stream:
-            _serve(reply_stream, json.loads(sys.argv[2]))
+        with reply_stream:
+            _serve(reply_stream, json.loads(sys.argv[1]))
     except BrokenPipeError:  # the parent is gone: nobody to reply to
         pass
     # Every file is written and closed: skip tearing down VTK and the scene (a few tenths of a second).
