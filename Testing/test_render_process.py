@@ -96,3 +96,12 @@ def test_a_script_without_a_main_guard_runs_once(tmp_path: Path) -> None:
     assert completed.returncode == 0, completed.stderr
     assert completed.stdout.count("script ran") == 1
     assert (tmp_path / "out" / "render.png").is_file()
+
+
+def test_close_ends_a_starting_child_at_once() -> None:
+    renderer = RenderProcess(size=64)
+    start = time.perf_counter()
+    renderer.close()
+    assert time.perf_counter() - start < 1.0  # killed, not waited for while it imports slicer-core
+    assert renderer._process.returncode is not None
+    assert not _children()

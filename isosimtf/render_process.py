@@ -77,16 +77,18 @@ class RenderProcess:
             raise RenderError(f"the rendering process ended unexpectedly (exit code {code})") from None
 
     def close(self) -> None:
-        """End the child (at once if it is still starting or rendering) and release the pipes."""
+        """End the child at once and release the pipes.
+
+        A child that replied to its job has closed every file it wrote before replying; one still starting, waiting
+        or rendering (the run failed, or was interrupted) has nothing worth waiting for.
+        """
         try:
             self._process.stdin.close()
         except BrokenPipeError:
             pass
-        try:
-            self._process.wait(timeout=2)
-        except subprocess.TimeoutExpired:
+        if self._process.poll() is None:
             self._process.kill()
-            self._process.wait()
+        self._process.wait()
         self._replies.close()
 
     def __enter__(self) -> RenderProcess:
