@@ -384,16 +384,21 @@ def merge_counts(low: CellCounts, high: CellCounts, spec: _CountSpec) -> CellCou
     return merged
 
 
-# Parts per worker of a dask volume's similarity pass: one (measured on a 1024^3 volume with 2 workers: 4 parts took
-# 1.4 to 1.6 times as long as 2, each part returning its tables and reading a border plane).
+# Parts per worker of a dask volume's similarity pass: one (each part returns tables of n_bins ** 2 int64; on
+# 2048 x 1024 x 1024 voxels and 2 workers, 2 parts per worker took 9.0 s against 8.0-10.3 s for one).
 _PARTS_PER_WORKER = 1
 
 
 def _similarity_workers() -> int:
     """How many parts of a dask volume's similarity pass run at once: the worker threads of the dask.distributed
-    client in use, the workers of dask's ``"processes"`` scheduler when it is the one chosen, else 1 (one part,
-    counted in this process while dask's threads read and quantize the next row of chunks: on 2 cores, a pool of
-    2 processes measured no faster, 5.2-5.3 s against 5.0-5.3 s on a 1024^3 volume)."""
+    client in use, the workers of dask's ``"processes"`` scheduler when it is the one chosen, else 1.
+
+    One part by default: counted in this process while dask's threads read and quantize the next row of chunks, it
+    already keeps about 1.4 of 2 cores busy. A pool of 2 processes gained nothing on a 1024^3 volume (5.2-5.3 s against
+    5.0-5.3 s, the pool's start included) and 1.2 times on 2048 x 1024 x 1024 (8.9 s against 10.3-11.7 s), but it
+    would double the memory and start its processes by re-running the caller's main module (a script without a
+    ``__main__`` guard would run again in each).
+    """
     import os
 
     import dask
