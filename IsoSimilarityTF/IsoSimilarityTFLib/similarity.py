@@ -541,8 +541,9 @@ def interval_histograms(
     and a dask volume is read a few planes at a time. Memory: one plane of hyper-cells per level, the levels of at
     most ``GATHERED_CELLS`` hyper-cells, and ``n_bins ** 2`` int64 per table.
 
-    A dask volume is counted in parts along axis 0 (rows of chunks) that run where dask schedules them (processes or a
-    cluster's workers, each reading its own chunks), then merged: the same integer counts, in any order.
+    On a dask.distributed cluster (or dask's ``"processes"`` scheduler), a dask volume is counted in parts along axis 0
+    (whole rows of chunks, one part per worker) that run on the workers, each reading its own chunks, and are merged
+    there (:func:`merge_counts`): the same integer counts. Otherwise it is one part, counted in this process.
 
     Args:
         bins: 3-D uint8 or uint16 array (numpy), or integer dask array (checked and cast slab by slab), values in
