@@ -199,7 +199,8 @@ def test_isosimtf_designs_a_zarr_volume_as_the_same_volume_in_memory(tmp_path: P
 
 
 def test_isosimtf_on_a_distributed_cluster(tmp_path: Path) -> None:
-    """--scheduler: the chunks are read and quantized by a dask.distributed cluster (on loopback here)."""
+    """--scheduler: the chunks are read and quantized by a dask.distributed cluster (on loopback here), and the
+    similarity pass runs there too, one part per worker thread, merged there."""
     distributed = pytest.importorskip("distributed")
     values = volume_values()
     zarr.create_array(str(tmp_path / "v.zarr"), data=values, chunks=(3, 5, 13))
@@ -212,6 +213,7 @@ def test_isosimtf_on_a_distributed_cluster(tmp_path: Path) -> None:
         distributed.default_client().close()  # the command's client; its process would end here
         ran = {str(entry[0]).split("-")[0] for entry in cluster.scheduler.transition_log}
         assert any("from-zarr" in key or "getitem" in key for key in ran), ran  # the chunks were read there
+        assert {"isosimtf", "merge_counts"} <= ran, ran  # the parts were counted and merged there
     assert _classes_json(tmp_path / "cluster") == _classes_json(tmp_path / "local")
 
 

@@ -26,7 +26,7 @@ CATALOG_FILE = ROOT / "IsoSimilarityTF.json"
 # Modules Slicer's Python has besides the standard library.
 SLICER_TOP_LEVEL_MODULES = {"slicer", "qt", "ctk", "vtk", "vtkmodules", "numpy", "IsoSimilarityTFLib"}
 # Imported only for input Slicer never gives (a dask array: volumes larger than memory, from the command line).
-COMMAND_LINE_ONLY_MODULES = {"dask"}
+COMMAND_LINE_ONLY_MODULES = {"dask", "distributed"}
 # Widget classes the parameter node wrapper can bind to each parameter type (Slicer's guiConnectors).
 BINDABLE_WIDGETS = {
     "int": {"QSpinBox", "QSlider"},

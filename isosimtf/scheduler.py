@@ -1,7 +1,10 @@
 """Where a volume read lazily is computed: dask's local threaded scheduler, or a ``dask.distributed`` cluster.
 
-Only the reading and quantizing of the chunks run on the scheduler (each row of chunks is gathered into the
-``isosimtf`` process, which folds it into the octree); an in-memory volume never touches dask.
+On the local scheduler the ``isosimtf`` process folds the chunks into the octree, one row of chunks at a time, while
+dask's threads read and quantize the next one. On a cluster the similarity pass runs on the workers: one part of the
+volume (whole rows of chunks along axis 0) per worker thread, each read and counted by its worker, the counts merged
+on the workers (see ``IsoSimilarityTFLib.chunked``); only the merged counts come back. An in-memory volume never
+touches dask.
 """
 
 from typing import Any, Optional

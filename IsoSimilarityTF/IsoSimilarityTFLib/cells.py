@@ -157,19 +157,40 @@ class OctreeBuilder:
     to ``sink`` and folded into the coarser levels, so no level is held whole (memory: one plane of hyper-cells per
     level, whatever the volume's depth).
 
-    Usage: :meth:`add_slab` for every slab of :func:`unit_cell_slabs`, in order along axis 0; every row of every level
-    has been handed to ``sink`` once the last slab is added.
+    A builder may see only the unit-cell planes ``[first, stop)`` of the grid (a part of the volume, the others being
+    built elsewhere): a row wholly inside them is complete and goes to ``sink``; a row crossing ``first`` or ``stop``
+    is partial, the hull of the part's unit cells in it, and goes to ``partial_sink`` (the hull of the same row from
+    every part that crosses it is the row's interval). A partial row only feeds coarser rows that are partial too (a
+    coarser row contains it), so the complete rows are exact.
+
+    Usage: :meth:`add_slab` for every slab of :func:`unit_cell_slabs`, in order along axis 0 from plane ``first`` to
+    ``stop``, then :meth:`finish`; every complete row of every level has been handed to ``sink`` once, and every
+    partial one to ``partial_sink`` once.
     """
 
-    def __init__(self, cell_grid_shape: Shape3, dtype: np.dtype, sink: RowSink) -> None:
+    def __init__(
+        self,
+        cell_grid_shape: Shape3,
+        dtype: np.dtype,
+        sink: RowSink,
+        planes: Optional[tuple[int, int]] = None,
+        partial_sink: Optional[RowSink] = None,
+    ) -> None:
         """
         Args:
             cell_grid_shape: unit cells per axis.
             dtype: integer dtype of the intervals.
-            sink: called as ``sink(level, first_row, mins, maxs)`` with finished rows ``first_row ..`` of a level
+            sink: called as ``sink(level, first_row, mins, maxs)`` with complete rows ``first_row ..`` of a level
                 (arrays of shape ``(rows, t1, t2)``, valid only during the call), every row of every level once.
+            planes: ``(first, stop)``, the unit-cell planes along axis 0 this builder sees (default all).
+            partial_sink: called like ``sink`` with each partial row (one row at a time); needed unless ``planes``
+                is the whole grid.
         """
         self.grid = tuple(int(n) for n in cell_grid_shape)
+        self.first, self.stop = (0, self.grid[0]) if planes is None else (int(planes[0]), int(planes[1]))
+        if not 0 <= self.first <= self.stop <= self.grid[0]:
+            raise ValueError(f"planes must lie in [0, {self.grid[0]}]; got {planes!r}")
+        self._partial_sink = partial_sink
         self.sizes = octree_levels(self.grid)
         self._sink = sink
         # level -> (source level, or None for the unit cells; blocks of the source per hyper-cell)
@@ -238,8 +259,27 @@ class OctreeBuilder:
         else:  # a copy: the block may be a view of the caller's reused buffer
             self._pending[level] = (reduced[0].copy(), reduced[1].copy())
 
+    def finish(self) -> None:
+        """Hand on the unfinished rows, partial at ``stop``: finest level first, each folded into the coarser ones."""
+        for level in range(len(self.sizes) - 1, 0, -1):
+            if level in self._pending:
+                self._finish(level, (self.stop - 1) // self.sizes[level - 1][0], *self._pending.pop(level))
+
     def _finish(self, level: int, first_row: int, mins: np.ndarray, maxs: np.ndarray) -> None:
-        self._sink(level, first_row, mins, maxs)
+        # Only the first row can begin before ``first`` and only the last end after ``stop``: those are partial.
+        size = self.sizes[level - 1][0]
+        complete = range(first_row, first_row + len(mins))
+        if complete and complete[0] * size < self.first:
+            complete = complete[1:]
+        if complete and min((complete[-1] + 1) * size, self.grid[0]) > self.stop:
+            complete = complete[:-1]
+        for row in range(first_row, first_row + len(mins)):
+            if row not in complete:
+                k = row - first_row
+                self._partial_sink(level, row, mins[k : k + 1], maxs[k : k + 1])
+        if complete:
+            k = complete[0] - first_row
+            self._sink(level, complete[0], mins[k : k + len(complete)], maxs[k : k + len(complete)])
         for coarser in self._dependents.get(level, ()):
             self._fold(coarser, first_row, mins, maxs)
 

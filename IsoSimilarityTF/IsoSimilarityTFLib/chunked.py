@@ -11,6 +11,12 @@ voxel counts and the classes are those of the whole volume held in memory. Memor
 source values), one plane of hyper-cells per level and the levels small enough to be gathered whole; nothing grows
 with the volume's depth.
 
+On a dask.distributed cluster (or dask's ``"processes"`` scheduler) the similarity pass is a map-reduce: the volume
+is cut along axis 0 into one part per worker (whole rows of chunks), each part is read and counted by a worker as
+above, and the parts' counts are merged pairwise (:func:`~.similarity.merge_counts`): the joint histograms of rows of
+hyper-cells wholly inside a part add up, and a row across a border is the hull of its parts' halves. The result is
+the same, bit for bit; each worker needs what the whole pass needs in one process.
+
 dask is an optional dependency, imported only when a dask array is given: the Slicer module never needs it.
 """
 
@@ -153,12 +159,18 @@ class SlabTap:
     3 x ``classes._CONTACT_SAMPLE_VOXELS`` voxels of bins.
     """
 
-    def __init__(self, shape: tuple[int, int, int], n_bins: int) -> None:
+    def __init__(self, shape: tuple[int, int, int], n_bins: int, start: int = 0) -> None:
+        """
+        Args:
+            shape: the whole volume's shape.
+            n_bins: bins counted.
+            start: the first plane this tap sees (a part of the volume; the taps of the parts are then merged).
+        """
         self.shape = tuple(int(n) for n in shape)
         self.voxel_counts = np.zeros(n_bins, dtype=np.int64)
         self._kept = {k + d for k in contact_planes(self.shape) for d in (-1, 0, 1) if 0 <= k + d < self.shape[0]}
         self._planes: dict[int, np.ndarray] = {}
-        self._next = 0  # first plane not yet counted
+        self._next = int(start)  # first plane not yet counted
 
     def __call__(self, first: int, slab: np.ndarray) -> None:
         new = slab[self._next - first :]  # the planes of the halo were counted with the previous slab
@@ -167,6 +179,11 @@ class SlabTap:
             if k in self._kept:
                 self._planes[k] = slab[k - first].copy()
         self._next = first + len(slab)
+
+    def merge(self, other: "SlabTap") -> None:
+        """Add what ``other`` gathered from planes this tap has not seen (another part of the volume)."""
+        self.voxel_counts += other.voxel_counts
+        self._planes.update(other._planes)
 
     def __getitem__(self, plane: int) -> np.ndarray:
         """A plane kept for the background contact, shape ``(n1, n2)``."""

@@ -522,7 +522,7 @@ def design_transfer_function(
             normalization=opts["normalization"],
             levels=opts["levels"],
             progress=lambda fraction, message: report("similarity", fraction, message),
-            on_slab=tap,
+            tap=tap,
         )
 
     with stage("clustering", "affinity propagation"):

@@ -6,14 +6,14 @@ joint histogram of (hyper-cell min, hyper-cell max): for ``i <= j``, an inclusiv
 """
 
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from itertools import islice
 from typing import Callable, Optional
 
 import numpy as np
 
 from .cells import GATHERED_CELLS, OctreeBuilder, Shape3, octree_levels, unit_cell_slabs
-from .chunked import is_dask_array, voxel_slabs
+from .chunked import SlabTap, is_dask_array, voxel_slabs
 from .memory import check_memory
 from .quantize import checked_n_bins
 
@@ -198,31 +198,333 @@ def _counted_row_by_row(cells: int, n_bins: int) -> bool:
     return cells > max(GATHERED_CELLS, n_bins * n_bins)
 
 
-class _LevelHistogram:
-    """Joint (min, max) histogram of one octree level, from its rows as they are finished.
+class _LevelRows:
+    """The complete rows of one octree level in a part of the volume, as they are finished.
 
-    A small level is gathered whole and counted once (its table is made only when asked for: tables are
-    ``n_bins ** 2`` int64, 128 MB at 4096 bins); a large one is counted row by row and never held whole.
+    Rows of more hyper-cells than their table (and than :data:`~.cells.GATHERED_CELLS`) are counted into a table, never
+    held whole; fewer are gathered and counted when the whole volume's rows are (tables are ``n_bins ** 2`` int64,
+    128 MB at 4096 bins: a part holds none it does not need).
     """
 
-    def __init__(self, tiles: Shape3, dtype: np.dtype, n_bins: int) -> None:
-        self.n_bins = n_bins
-        cells = int(np.prod(tiles))
-        self._counter = PairCounter(n_bins) if _counted_row_by_row(cells, n_bins) else None
-        self._gathered = None if self._counter else (np.empty(tiles, dtype=dtype), np.empty(tiles, dtype=dtype))
+    def __init__(self, rows: range, tiles: Shape3, dtype: np.dtype, n_bins: int) -> None:
+        self._first = rows.start
+        shape = (len(rows), tiles[1], tiles[2])
+        self._counter = PairCounter(n_bins) if _counted_row_by_row(int(np.prod(shape)), n_bins) else None
+        self._gathered = None if self._counter else (np.empty(shape, dtype=dtype), np.empty(shape, dtype=dtype))
 
     def add_rows(self, first_row: int, mins: np.ndarray, maxs: np.ndarray) -> None:
         if self._counter is not None:
             self._counter.add(mins, maxs)
         else:
-            self._gathered[0][first_row : first_row + len(mins)] = mins
-            self._gathered[1][first_row : first_row + len(maxs)] = maxs
+            k = first_row - self._first
+            self._gathered[0][k : k + len(mins)] = mins
+            self._gathered[1][k : k + len(maxs)] = maxs
 
-    def table(self) -> np.ndarray:
-        """``(n_bins, n_bins)`` int64, once every row has been added."""
+    def put(self, level: int, counts: "CellCounts") -> None:
+        """Hand the rows to ``counts``: as a table when counted, else as one block of rows to count."""
         if self._counter is not None:
-            return self._counter.table
-        return joint_interval_histogram(*self._gathered, self.n_bins)
+            counts.tables[level] = self._counter.table
+        elif len(self._gathered[0]):
+            counts.rows[level] = [self._gathered]
+
+
+@dataclass
+class CellCounts:
+    """Joint (min, max) histograms of the hyper-cells of the unit-cell planes ``[first, stop)`` along axis 0 (a part
+    of the volume, or all of it), for the levels counted; parts side by side are :func:`merged <merge_counts>`.
+
+    Attributes:
+        first, stop: the unit-cell planes counted.
+        tables: level -> ``(n_bins, n_bins)`` int64 table of complete rows counted.
+        rows: level -> blocks ``(mins, maxs)`` of complete rows not yet counted, each of shape ``(rows, t1, t2)``.
+        partial: ``(level, row)`` -> ``(mins, maxs)`` of shape ``(1, t1, t2)``: rows crossing ``first`` or ``stop``,
+            the hull of this part's unit cells in them.
+        ends: the first and the last voxel plane of the part, ``(n1, n2)`` each: the unit cells between two parts need
+            a plane of each.
+        tap: the voxel counts and background-contact planes of the part's voxels, when asked for.
+    """
+
+    first: int
+    stop: int
+    tables: dict[int, np.ndarray]
+    rows: dict[int, list[tuple[np.ndarray, np.ndarray]]]
+    partial: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]
+    ends: tuple[np.ndarray, np.ndarray]
+    tap: Optional[SlabTap]
+
+
+@dataclass(frozen=True)
+class _CountSpec:
+    """What every part of one similarity pass counts: the volume's shape (voxels), bins, levels and bins' dtype."""
+
+    shape: Shape3
+    n_bins: int
+    levels: int
+    dtype: np.dtype
+    tap: bool
+
+    @property
+    def grid(self) -> Shape3:
+        return tuple(n - 1 for n in self.shape)
+
+    def counted_levels(self) -> list[int]:
+        """The levels counted (the ``levels`` coarsest), finest first."""
+        return list(range(self.levels, 0, -1))
+
+
+def _complete_rows(size: int, tiles: int, n: int, first: int, stop: int) -> range:
+    """Rows of hyper-cells ``size`` unit cells thick (``tiles`` of them over ``n`` planes) wholly inside the unit-cell
+    planes ``[first, stop)``."""
+    return range(-(-first // size), tiles if stop == n else stop // size)
+
+
+def count_cells(
+    slabs: Iterable[tuple[int, np.ndarray]],
+    spec: _CountSpec,
+    first: int,
+    stop: int,
+    progress: Optional[ProgressCallback] = None,
+) -> CellCounts:
+    """Count the unit-cell planes ``[first, stop)`` of a volume into the octree levels of the whole volume.
+
+    Args:
+        slabs: ``(start, voxels)`` slabs of bins covering the voxel planes ``first .. stop`` in order along axis 0,
+            each of shape ``(planes, n1, n2)`` (consecutive slabs may share a plane: each unit cell is counted once,
+            from the slab holding both of its planes).
+        spec: what is counted.
+        progress: called as ``progress(fraction, message)`` with the fraction of the whole pass done (this part's
+            unit cells), at least every ``_PROGRESS_CELLS`` unit cells.
+    """
+    grid, n_bins = spec.grid, spec.n_bins
+    builder_levels: dict[int, _LevelRows] = {}
+    partial: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+
+    def count_rows(level: int, first_row: int, mins: np.ndarray, maxs: np.ndarray) -> None:
+        if level in builder_levels:
+            builder_levels[level].add_rows(first_row, mins, maxs)
+
+    def keep_partial(level: int, row: int, mins: np.ndarray, maxs: np.ndarray) -> None:
+        if level in builder_levels:
+            partial[level, row] = (mins.copy(), maxs.copy())
+
+    builder = OctreeBuilder(grid, spec.dtype, count_rows, (first, stop), keep_partial)
+    unit_level = len(builder.sizes)
+    unit_rows = None
+    for level in spec.counted_levels():
+        tiles = builder.tiles(level) if level < unit_level else grid
+        size = builder.sizes[level - 1][0]
+        rows = _LevelRows(_complete_rows(size, tiles[0], grid[0], first, stop), tiles, spec.dtype, n_bins)
+        if level < unit_level:
+            builder_levels[level] = rows
+        else:
+            unit_rows = rows
+    tap = SlabTap(spec.shape, n_bins, first) if spec.tap else None
+    total = int(np.prod(grid)) + builder.n_cells
+    reported = 0
+    first_plane = voxels = None
+    for start, voxels in slabs:
+        if tap is not None:
+            tap(start, voxels)
+        if first_plane is None:  # a copy: a view would hold the whole slab
+            first_plane = voxels[0].copy()
+        for plane, mins, maxs in unit_cell_slabs(voxels, _SLAB_CELLS // (grid[1] * grid[2])):
+            plane += start
+            if unit_rows is not None:
+                unit_rows.add_rows(plane, mins, maxs)
+            builder.add_slab(plane, mins, maxs)
+            done = (plane + len(mins)) * grid[1] * grid[2]
+            if progress is not None and done - reported >= _PROGRESS_CELLS:
+                progress(done / total, "similarity: unit cells")
+                reported = done
+    builder.finish()
+    counts = CellCounts(first, stop, {}, {}, partial, (first_plane, voxels[-1].copy()), tap)
+    for level, rows in builder_levels.items():
+        rows.put(level, counts)
+    if unit_rows is not None:
+        unit_rows.put(unit_level, counts)
+    return counts
+
+
+def merge_counts(low: CellCounts, high: CellCounts, spec: _CountSpec) -> CellCounts:
+    """The counts of two parts side by side along axis 0 (``low`` first), exactly those of the two as one part.
+
+    The unit-cell plane between them (made of ``low``'s last voxel plane and ``high``'s first) is counted here; each
+    row partial in both is the hull of its two halves, and counted once it is wholly inside the merged planes.
+    Reuses (and changes) the arrays of ``low`` and ``high``.
+    """
+    if high.first != low.stop + 1:
+        raise ValueError(f"parts must follow each other; got planes up to {low.stop} then from {high.first}")
+    # Its voxels were counted by the tap of their parts.
+    border_spec = replace(spec, tap=False)
+    border = count_cells([(low.stop, np.stack((low.ends[1], high.ends[0])))], border_spec, low.stop, high.first)
+    merged = low
+    for part in (border, high):
+        for level, table in part.tables.items():
+            if level in merged.tables:
+                merged.tables[level] += table
+            else:
+                merged.tables[level] = table
+        for level, blocks in part.rows.items():
+            merged.rows.setdefault(level, []).extend(blocks)
+        for key, (mins, maxs) in part.partial.items():
+            if key in merged.partial:
+                np.minimum(merged.partial[key][0], mins, out=merged.partial[key][0])
+                np.maximum(merged.partial[key][1], maxs, out=merged.partial[key][1])
+            else:
+                merged.partial[key] = (mins, maxs)
+        merged.stop = part.stop
+    sizes, n = octree_levels(spec.grid), spec.grid[0]
+    for level, row in list(merged.partial):
+        size = sizes[level - 1][0]
+        if row * size >= merged.first and min((row + 1) * size, n) <= merged.stop:
+            merged.rows.setdefault(level, []).append(merged.partial.pop((level, row)))
+    merged.ends = (low.ends[0], high.ends[1])
+    if merged.tap is not None:
+        merged.tap.merge(high.tap)
+    return merged
+
+
+# Parts per worker of a dask volume's similarity pass: one (each part returns tables of n_bins ** 2 int64; on
+# 2048 x 1024 x 1024 voxels and 2 workers, 2 parts per worker took 9.0 s against 8.0-10.3 s for one).
+_PARTS_PER_WORKER = 1
+
+
+def _similarity_workers() -> int:
+    """How many parts of a dask volume's similarity pass run at once: the worker threads of the dask.distributed
+    client in use, the workers of dask's ``"processes"`` scheduler when it is the one chosen, else 1.
+
+    One part by default: counted in this process while dask's threads read and quantize the next row of chunks, it
+    already keeps about 1.4 of 2 cores busy. A pool of 2 processes gained nothing on a 1024^3 volume (5.2-5.3 s against
+    5.0-5.3 s, the pool's start included) and 1.2 times on 2048 x 1024 x 1024 (8.9 s against 10.3-11.7 s), but it
+    would double the memory and start its processes by re-running the caller's main module (a script without a
+    ``__main__`` guard would run again in each).
+    """
+    import os
+
+    import dask
+
+    scheduler = dask.config.get("scheduler", None)
+    if scheduler in ("dask.distributed", "distributed"):
+        from distributed import default_client
+
+        return max(1, sum(default_client().nthreads().values()))
+    if scheduler in ("processes", "multiprocessing"):
+        return int(dask.config.get("num_workers", None) or os.cpu_count() or 1)
+    return 1
+
+
+class _Unread:
+    """A dask array handed to a task as it is, not computed first (dask computes the collections among a task's
+    arguments): the task reads its chunks itself."""
+
+    def __init__(self, array) -> None:
+        self.array = array
+
+
+def _checked_slabs(volume, spec: _CountSpec, offset: int = 0) -> Iterator[tuple[int, np.ndarray]]:
+    """The slabs of :func:`~.chunked.voxel_slabs` of a dask volume of bins starting at plane ``offset``, each checked
+    against ``n_bins`` and cast to the engine's dtype."""
+    for start, voxels in voxel_slabs(volume):
+        _check_bin_bounds(voxels, spec.n_bins)
+        yield offset + start, voxels.astype(spec.dtype, copy=False)
+
+
+def _reuse_freed_memory() -> None:
+    """Let glibc reuse the memory the engine frees rather than return it at once (Linux; elsewhere nothing).
+
+    dask.distributed starts its workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which also stops glibc from raising its
+    mmap threshold: every buffer of more than 128 kB (``np.bincount``'s 2 MB index, the reduced slabs) is then mapped
+    and page-faulted afresh, and the pass took 3 times as long (sys time 21 s of 34 s on a 1024^3 volume). Buffers up
+    to 32 MB come from the heap again, and 64 MB of freed heap is kept.
+    """
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c"))
+        libc.mallopt(-3, 32 << 20)  # M_MMAP_THRESHOLD
+        libc.mallopt(-1, 64 << 20)  # M_TRIM_THRESHOLD
+    except (OSError, AttributeError, TypeError):  # no C library found, or not glibc
+        pass
+
+
+def _count_part(part: _Unread, offset: int, spec: _CountSpec) -> CellCounts:
+    """A dask task: the counts of the voxel planes ``offset ..`` of ``part``, read here."""
+    import dask
+
+    _reuse_freed_memory()
+    # Read here (voxel_slabs' thread reads the next row while this one is counted): from inside a cluster's task,
+    # dask's default scheduler would be the cluster, which would read the chunks elsewhere and send them here.
+    with dask.config.set(scheduler="sync"):
+        return count_cells(_checked_slabs(part.array, spec, offset), spec, offset, offset + len(part.array) - 1)
+
+
+def _chunked_counts(bins, spec: _CountSpec, progress: Optional[ProgressCallback]) -> CellCounts:
+    """:func:`count_cells` of a dask volume: in parts along axis 0 (whole rows of chunks) counted in parallel by dask's
+    scheduler, each reading its own chunks, and merged pairwise as they finish (a tree: few parts are held at once)."""
+    import dask
+    from dask.base import tokenize
+    from dask.callbacks import Callback
+
+    planes = np.cumsum((0, *bins.chunks[0]))
+    workers = _similarity_workers()
+    n_parts = min(len(planes) - 1, workers * _PARTS_PER_WORKER)
+    if workers == 1 or n_parts == 1:  # one part, read by the scheduler as this process counts it
+        return count_cells(_checked_slabs(bins, spec), spec, 0, spec.grid[0], progress)
+    bounds = planes[np.unique(np.linspace(0, len(planes) - 1, n_parts + 1).round().astype(int))]
+    token = tokenize(bins, spec)
+    cells = {}
+    parts = []
+    for k, (start, stop) in enumerate(zip(bounds[:-1], bounds[1:])):
+        key = f"isosimtf-part-{k}-{token}"
+        cells[key] = int(stop - 1 - start) * spec.grid[1] * spec.grid[2]
+        parts.append(dask.delayed(_count_part)(_Unread(bins[start:stop]), int(start), spec, dask_key_name=key))
+    while len(parts) > 1:  # adjacent parts merged pairwise, the last one of an odd count carried up
+        merged = [dask.delayed(merge_counts)(low, high, spec) for low, high in zip(parts[::2], parts[1::2])]
+        parts = merged + parts[len(merged) * 2 :]
+    total = sum(_level_cells(spec.grid))
+    done = 0
+
+    def posttask(key, result, dsk, state, worker_id) -> None:  # local schedulers only: a cluster reports at the end
+        nonlocal done
+        if progress is not None and key in cells:
+            done += cells[key]
+            progress(done / total, "similarity: unit cells")
+
+    # chunksize 1: dask's process pool would otherwise send the parts to one process in a batch.
+    with Callback(posttask=posttask), dask.config.set(chunksize=1):
+        (counts,) = dask.compute(parts[0])
+    return counts
+
+
+def _level_cells(grid: Shape3) -> list[int]:
+    """Hyper-cells of each octree level of a grid of unit cells, coarsest first (unit cells last)."""
+    return [int(np.prod([-(-n // s) for n, s in zip(grid, size)], dtype=np.int64)) for size in octree_levels(grid)]
+
+
+def _level_tables(
+    counts: CellCounts, spec: _CountSpec, progress: Optional[ProgressCallback]
+) -> Iterator[tuple[int, Shape3, np.ndarray]]:
+    """The tables of the whole volume's counts, one level at a time, finest first (see :func:`interval_histograms`)."""
+    if counts.partial or (counts.first, counts.stop) != (0, spec.grid[0]):
+        raise ValueError("the counts do not cover the whole volume")
+    sizes = octree_levels(spec.grid)
+    cells = _level_cells(spec.grid)
+    done, total = cells[-1], sum(cells)
+    for level in spec.counted_levels():
+        table = counts.tables.pop(level, None)
+        blocks = counts.rows.pop(level, [])
+        if blocks or table is None:
+            counter = PairCounter(spec.n_bins)
+            for mins, maxs in blocks:
+                counter.add(mins, maxs)
+            table = counter.table if table is None else table + counter.table
+        del blocks
+        yield level, sizes[level - 1], table
+        del table  # tables are n_bins ** 2 int64 (128 MB at 4096 bins): hold none longer than the consumer does
+        if progress is not None and level < len(sizes):
+            done += cells[level - 1]
+            progress(done / total, f"similarity: level {level} of {len(sizes)}")
 
 
 def interval_histograms(
@@ -230,7 +532,7 @@ def interval_histograms(
     n_bins: int,
     levels: int,
     progress: Optional[ProgressCallback] = None,
-    on_slab: Optional[Callable[[int, np.ndarray], None]] = None,
+    tap: Optional[SlabTap] = None,
 ) -> Iterator[tuple[int, Shape3, np.ndarray]]:
     """Joint (min, max) histogram of the hyper-cells of each of the ``levels`` coarsest octree levels.
 
@@ -239,63 +541,31 @@ def interval_histograms(
     and a dask volume is read a few planes at a time. Memory: one plane of hyper-cells per level, the levels of at
     most ``GATHERED_CELLS`` hyper-cells, and ``n_bins ** 2`` int64 per table.
 
+    On a dask.distributed cluster (or dask's ``"processes"`` scheduler), a dask volume is counted in parts along axis 0
+    (whole rows of chunks, one part per worker) that run on the workers, each reading its own chunks, and are merged
+    there (:func:`merge_counts`): the same integer counts. Otherwise it is one part, counted in this process.
+
     Args:
         bins: 3-D uint8 or uint16 array (numpy), or integer dask array (checked and cast slab by slab), values in
             ``[0, n_bins)``.
         levels: how many of the coarsest levels to count.
-        progress: called as ``progress(fraction, message)`` at least every ``_PROGRESS_CELLS`` unit cells and after
-            each level; raising from it aborts.
-        on_slab: called as ``on_slab(first, voxels)`` with each slab of bins read (in order along axis 0, the next
-            slab's first plane included), so that other passes over the volume can ride on this one.
+        progress: called as ``progress(fraction, message)`` during the pass and after each level; raising from it
+            aborts.
+        tap: a dask volume's voxel counts and background-contact planes are gathered into it during the pass.
 
     Yields:
         ``(level, size, histogram)`` finest level first: level number (1 = coarsest), hyper-cell size in unit cells,
         ``(n_bins, n_bins)`` int64 table.
     """
-    grid = tuple(n - 1 for n in bins.shape)
-    sizes = octree_levels(grid)
-    unit_level = len(sizes)
-    histograms: dict[int, _LevelHistogram] = {}
-
-    def count_rows(level: int, first_row: int, mins: np.ndarray, maxs: np.ndarray) -> None:
-        if level in histograms:
-            histograms[level].add_rows(first_row, mins, maxs)
-
     dtype = bins.dtype if bins.dtype in (np.uint8, np.uint16) else _index_dtype(n_bins)
-    builder = OctreeBuilder(grid, dtype, count_rows)
-    for level in range(min(levels, unit_level - 1), 0, -1):
-        histograms[level] = _LevelHistogram(builder.tiles(level), dtype, n_bins)
-    unit_cells = int(np.prod(grid))
-    total = unit_cells + builder.n_cells
-    unit_counter = PairCounter(n_bins) if levels == unit_level else None
-    reported = 0
-    chunked = is_dask_array(bins)
-    for start, voxels in voxel_slabs(bins) if chunked else [(0, bins)]:
-        if chunked:
-            _check_bin_bounds(voxels, n_bins)
-            voxels = voxels.astype(dtype, copy=False)
-        if on_slab is not None:
-            on_slab(start, voxels)
-        for first, mins, maxs in unit_cell_slabs(voxels, _SLAB_CELLS // (grid[1] * grid[2])):
-            first += start
-            if unit_counter is not None:
-                unit_counter.add(mins, maxs)
-            builder.add_slab(first, mins, maxs)
-            done = (first + len(mins)) * grid[1] * grid[2]
-            if progress is not None and done - reported >= _PROGRESS_CELLS:
-                progress(done / total, "similarity: unit cells")
-                reported = done
-    if unit_counter is not None:
-        table = unit_counter.table
-        unit_counter = None
-        yield unit_level, (1, 1, 1), table
-        del table  # tables are n_bins ** 2 int64 (128 MB at 4096 bins): hold none longer than the consumer does
-    done = unit_cells
-    for level, histogram in histograms.items():
-        yield level, sizes[level - 1], histogram.table()
-        done += builder.n_level_cells(level)
-        if progress is not None:
-            progress(done / total, f"similarity: level {level} of {unit_level}")
+    spec = _CountSpec(tuple(int(n) for n in bins.shape), int(n_bins), int(levels), np.dtype(dtype), tap is not None)
+    if is_dask_array(bins):
+        counts = _chunked_counts(bins, spec, progress)
+    else:
+        counts = count_cells([(0, bins)], spec, 0, spec.grid[0], progress)
+    if tap is not None:
+        tap.merge(counts.tap)
+    yield from _level_tables(counts, spec, progress)
 
 
 def _batched(items: Iterable, size: int) -> Iterator[list]:
@@ -324,11 +594,11 @@ def isovalue_similarity(
     normalization: str = "thesis",
     levels: Optional[int] = None,
     progress: Optional[ProgressCallback] = None,
-    on_slab: Optional[Callable[[int, np.ndarray], None]] = None,
+    tap: Optional[SlabTap] = None,
 ) -> IsovalueSimilarity:
     """Hierarchical similarity of all isovalue pairs, with the per-level cell counts it came from.
 
-    See :func:`similarity_matrix` for the arguments, and :func:`interval_histograms` for ``on_slab``.
+    See :func:`similarity_matrix` for the arguments, and :func:`interval_histograms` for ``tap``.
     """
     _check_options(crossing, normalization)
     bins = _check_bins(bins, n_bins)
@@ -349,7 +619,7 @@ def isovalue_similarity(
     by_row = np.zeros_like(by_column) if normalization == "ma-entezari" else None
     cell_counts = np.zeros((levels, n_bins), dtype=np.int64)
     sizes = [None] * levels
-    histograms = interval_histograms(bins, n_bins, levels, progress, on_slab)
+    histograms = interval_histograms(bins, n_bins, levels, progress, tap)
     for batch in _batched(histograms, max(1, _STACKED_ENTRIES // (n_bins * n_bins))):
         overlaps = _upper_overlaps(np.stack([histogram for _, _, histogram in batch]), crossing)
         counts = np.diagonal(overlaps, axis1=1, axis2=2)
