@@ -139,3 +139,28 @@ def test_ct_colour_follows_each_class_hu():
     assert ct[2] != ct[3]  # one tissue, two densities, two colours on CT
     mr, _, _ = default_look(classes, tissue_of, values, "mr")
     assert mr[1] == mr[2] == mr[3]  # one colour per tissue on uncalibrated data
+
+
+@pytest.mark.parametrize("colors", ["ramp", "distinct"])
+@pytest.mark.parametrize("kind", ["ct", "mr", "8bit"])
+def test_a_single_background_class_gets_a_look_that_shows_nothing(kind, colors):
+    """Affinity propagation may find one class only, the background: nothing to colour or show, and no error."""
+    colors_out, opacities, visible = default_look(
+        make_classes([5544]), np.zeros(1, int), np.zeros(1), kind, colors=colors
+    )
+    assert visible == [False] and opacities == [0.0] and len(colors_out[0]) == 3
+
+
+def test_a_design_with_a_single_class_shows_nothing():
+    """A small CT-like volume whose isovalues all fall into one class (found by a randomized sweep of the engine)."""
+    rng = np.random.default_rng(2)
+    shape = (33, 12, 14)
+    rng.choice([9, 17, 33])  # the sweep drew this before the volume
+    r = np.sqrt(((np.indices(shape) - np.array(shape)[:, None, None, None] / 2) ** 2).sum(0))
+    values = (np.select([r < 3, r < 5], [1000, 300], -1000) + rng.normal(0, 30, shape)).astype(np.int16)
+    design = design_transfer_function(
+        values, (0.5, 0.5, 1.0), n_bins=16, crossing="strict", background="largest", unconverged="keep"
+    )
+    assert len(design.classes) == 1 and design.classes[0].background
+    assert not any(design.is_shown(c.id) for c in design.classes)
+    assert design.volume_property() is not None

@@ -155,7 +155,7 @@ def default_look(
     # Colours: one per tissue (per class on CT, see below).
     tissue_color = {t: list(BACKGROUND_GREY) for t in range(n_tissues)}
     class_color: dict[int, list[float]] = {}
-    if colors == "ramp":
+    if colors == "ramp" and foreground:  # without a foreground (a single class, the background) nothing is coloured
         # A place on the ramp is a mean value between the lowest shown tissue's (dark red) and the densest real
         # tissue's (white), so the colour says how dense it is, as in the presets. On CT the value is a physical
         # density (HU) and the presets' colour follows it continuously, so each class takes the colour of its own
@@ -176,7 +176,7 @@ def default_look(
             tissue_color[t] = ramp_at(tissue_value[t])
         if kind == "ct":
             class_color = {c.id: ramp_at(class_values[c.id]) for c in classes if not c.background}
-    else:
+    elif colors == "distinct":
         for i, t in enumerate(sorted(foreground, key=lambda t: (-tissue_voxels[t], t))):
             tissue_color[t] = list(PALETTE[i % len(PALETTE)])
 
