@@ -42,6 +42,12 @@ def octree_levels(cell_grid_shape: Shape3) -> list[Shape3]:
     return sizes
 
 
+def complete_rows(size: int, n: int, first: int, stop: int) -> range:
+    """The rows of hyper-cells ``size`` unit cells thick (tiling ``n`` unit-cell planes from 0, the last one clipped)
+    that lie wholly inside the unit-cell planes ``[first, stop)``; a row crossing ``first`` or ``stop`` is partial."""
+    return range(-(-first // size), -(-n // size) if stop == n else stop // size)
+
+
 def unit_cell_slabs(bins: np.ndarray, planes: int) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
     """Unit-cell intervals, ``planes`` planes of cells along axis 0 at a time.
 
@@ -266,13 +272,8 @@ class OctreeBuilder:
                 self._finish(level, (self.stop - 1) // self.sizes[level - 1][0], *self._pending.pop(level))
 
     def _finish(self, level: int, first_row: int, mins: np.ndarray, maxs: np.ndarray) -> None:
-        # Only the first row can begin before ``first`` and only the last end after ``stop``: those are partial.
-        size = self.sizes[level - 1][0]
-        complete = range(first_row, first_row + len(mins))
-        if complete and complete[0] * size < self.first:
-            complete = complete[1:]
-        if complete and min((complete[-1] + 1) * size, self.grid[0]) > self.stop:
-            complete = complete[:-1]
+        inside = complete_rows(self.sizes[level - 1][0], self.grid[0], self.first, self.stop)
+        complete = range(max(first_row, inside.start), min(first_row + len(mins), inside.stop))
         for row in range(first_row, first_row + len(mins)):
             if row not in complete:
                 k = row - first_row

@@ -12,7 +12,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from .cells import GATHERED_CELLS, OctreeBuilder, Shape3, octree_levels, unit_cell_slabs
+from .cells import GATHERED_CELLS, OctreeBuilder, Shape3, complete_rows, octree_levels, unit_cell_slabs
 from .chunked import SlabTap, is_dask_array, voxel_slabs
 from .memory import check_memory
 from .quantize import checked_n_bins
@@ -272,12 +272,6 @@ class _CountSpec:
         return list(range(self.levels, 0, -1))
 
 
-def _complete_rows(size: int, tiles: int, n: int, first: int, stop: int) -> range:
-    """Rows of hyper-cells ``size`` unit cells thick (``tiles`` of them over ``n`` planes) wholly inside the unit-cell
-    planes ``[first, stop)``."""
-    return range(-(-first // size), tiles if stop == n else stop // size)
-
-
 def count_cells(
     slabs: Iterable[tuple[int, np.ndarray]],
     spec: _CountSpec,
@@ -312,8 +306,8 @@ def count_cells(
     unit_rows = None
     for level in spec.counted_levels():
         tiles = builder.tiles(level) if level < unit_level else grid
-        size = builder.sizes[level - 1][0]
-        rows = _LevelRows(_complete_rows(size, tiles[0], grid[0], first, stop), tiles, spec.dtype, n_bins)
+        inside = complete_rows(builder.sizes[level - 1][0], grid[0], first, stop)
+        rows = _LevelRows(inside, tiles, spec.dtype, n_bins)
         if level < unit_level:
             builder_levels[level] = rows
         else:
@@ -375,8 +369,7 @@ def merge_counts(low: CellCounts, high: CellCounts, spec: _CountSpec) -> CellCou
         merged.stop = part.stop
     sizes, n = octree_levels(spec.grid), spec.grid[0]
     for level, row in list(merged.partial):
-        size = sizes[level - 1][0]
-        if row * size >= merged.first and min((row + 1) * size, n) <= merged.stop:
+        if row in complete_rows(sizes[level - 1][0], n, merged.first, merged.stop):
             merged.rows.setdefault(level, []).append(merged.partial.pop((level, row)))
     merged.ends = (low.ends[0], high.ends[1])
     if merged.tap is not None:
