@@ -168,11 +168,11 @@ def shown_tissues(design: TransferFunctionDesign) -> list[Tissue]:
 def open_headless(
     size: int = DEFAULT_SIZE,
     *,
-    tile_size: Optional[int] = None,
     backdrop: str = DEFAULT_BACKDROP,
     ray_casting: str = DEFAULT_RAY_CASTING,
 ) -> "HeadlessSlicer":
-    """The headless Slicer that :func:`render_outputs` draws in, its window at tile size (default: half of ``size``).
+    """The headless Slicer that :func:`render_outputs` draws in, its window at tile size: half of ``size`` (at least
+    ``MIN_SIZE``).
 
     Args:
         backdrop: "black" or "slicer" (Slicer's blue gradient), see ``rendering.BACKDROPS``.
@@ -180,7 +180,7 @@ def open_headless(
     """
     from .rendering import HeadlessSlicer
 
-    tile_size = tile_size or max(MIN_SIZE, size // 2)
+    tile_size = max(MIN_SIZE, size // 2)
     background = (0.0, 0.0, 0.0) if backdrop == "black" else None
     return HeadlessSlicer(size=(tile_size, tile_size), rendering_method=ray_casting, background=background)
 

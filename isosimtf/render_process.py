@@ -141,7 +141,7 @@ def _serve(replies: BinaryIO, window: dict) -> None:
 
 
 if __name__ == "__main__":
-    # Ctrl+C reaches the whole process group: the parent handles it and closes the child's stdin.
+    # Ctrl+C reaches the whole process group: the parent handles it and ends the child.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     # The replies take the standard output's file descriptor; what else would be written there goes to stderr.
     reply_stream = os.fdopen(os.dup(sys.stdout.fileno()), "wb")
