@@ -1,7 +1,9 @@
 """The whole pipeline: volume in, classes and transfer function out, editable class by class without recomputing."""
 
+import base64
 import json
 import time
+import zlib
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -13,12 +15,13 @@ from .chunked import SlabTap, chunk_row_bytes, is_dask_array, quantize_chunked
 from .classes import IsovalueClass, build_classes, runs
 from .clustering import FALLBACK_DAMPINGS, cluster_isovalues, unconverged_advice
 from .errors import ClusteringError
-from .look import class_mean_values, default_look, detect_kind, gradient_ramp_top
+from .look import class_mean_values, default_look, detect_kind, gradient_ramp_top, ramped_opacity
 from .memory import check_memory
 from .options import DEFAULT_OPTIONS, check_options
 from .quantize import Quantization, quantize
 from .similarity import isovalue_similarity
 from .tissues import TissueHierarchy, tissue_hierarchy
+from .visibility import Preview, enclosure, preview_bins
 from .transfer_function import (
     TransferFunctionPoints,
     fill_volume_property,
@@ -51,6 +54,7 @@ class Tissue:
         opacity: opacity per mm when shown.
         visible: whether the tissue is shown.
         background: whether the tissue is the background class alone.
+        picture_share: share of the default look's picture this tissue gives (see :mod:`.visibility`), or None.
     """
 
     id: int
@@ -61,6 +65,7 @@ class Tissue:
     opacity: float
     visible: bool
     background: bool = False
+    picture_share: Optional[float] = None
 
     def to_dict(self) -> dict:
         return {
@@ -72,6 +77,7 @@ class Tissue:
             "opacity": self.opacity,
             "visible": self.visible,
             "background": self.background,
+            "picture_share": self.picture_share,
         }
 
     @classmethod
@@ -85,6 +91,7 @@ class Tissue:
             opacity=float(data["opacity"]),
             visible=bool(data["visible"]),
             background=bool(data.get("background", False)),
+            picture_share=None if data.get("picture_share") is None else float(data["picture_share"]),
         )
 
 
@@ -105,13 +112,14 @@ class TransferFunctionDesign:
         clustering: ``n_iter``, ``converged``, ``n_classes`` and ``preference`` of affinity propagation.
         bin_voxels: ``(n_bins,)`` voxels per bin (the volume's histogram).
         hierarchy: every grouping of the non-background classes into tissues (see :mod:`.tissues`).
-        kind: ``"ct"``, ``"mr"`` or ``"8bit"`` (see :func:`.look.detect_kind`); chooses the opacity curve.
+        kind: ``"ct"``, ``"mr"`` or ``"8bit"`` (see :func:`.look.detect_kind`); chooses the colours.
         tissues: the current tissues, in id order (id 0 = lowest intensity).
         timings_s: seconds per stage.
         spacing: voxel spacing in mm, or None.
         solo_class: id of the class shown alone, or None.
         solo_tissue_id: id of the tissue shown alone, or None.
         similarity: ``(n_bins, n_bins)`` similarity matrix (not serialized), or None after loading.
+        preview: the low-resolution volume the look's visibility step renders (see :mod:`.visibility`), or None.
     """
 
     value_range: tuple[float, float]
@@ -129,6 +137,7 @@ class TransferFunctionDesign:
     solo_class: Optional[int] = None
     solo_tissue_id: Optional[int] = None
     similarity: Optional[np.ndarray] = field(default=None, repr=False)
+    preview: Optional[Preview] = field(default=None, repr=False)
 
     @property
     def edges(self) -> np.ndarray:
@@ -245,22 +254,33 @@ class TransferFunctionDesign:
             item.visible = not item.background
 
     def reset_look(self) -> None:
-        """Back to the default colours, opacities and visibility of the current grouping (see :mod:`.look`)."""
-        colors, opacities, visible = default_look(
+        """Back to the default colours, opacities and visibility of the current grouping (see :mod:`.look`): the
+        visibility step runs again on the design's preview."""
+        look = default_look(
             self.classes,
             self.tissue_of_class,
             class_mean_values(self.labels, self.bin_voxels, self.edges, len(self.classes)),
             self.kind,
+            labels=self.labels,
+            class_bins=self.class_bins,
+            noise_sd=self.hierarchy.noise_sd,
+            preview=self.preview,
             colors=self.options.get("colors", DEFAULT_OPTIONS["colors"]),
             max_shown=self.options.get("max_classes", DEFAULT_OPTIONS["max_classes"]),
         )
-        for c, color, opacity, shown in zip(self.classes, colors, opacities, visible):
+        for c, color, opacity, shown in zip(self.classes, look.colors, look.opacities, look.visible):
             c.color, c.opacity, c.visible = color, opacity, shown
         for t in self.tissues:
             members = [self.classes[c] for c in t.classes]
             t.color = list(max(members, key=lambda c: c.voxels).color)  # its largest class's, where they differ
             t.opacity = max(c.opacity for c in members)
             t.visible = any(c.visible for c in members)
+            t.picture_share = None if look.tissue_shares is None else float(look.tissue_shares[t.id])
+
+    @property
+    def class_bins(self) -> np.ndarray:
+        """``(n_classes,)`` voxel-weighted mean bin of each class."""
+        return class_mean_values(self.labels, self.bin_voxels, np.arange(self.n_bins + 1) - 0.5, len(self.classes))
 
     # Transfer function ---------------------------------------------------------------------------------------------
     @property
@@ -271,11 +291,13 @@ class TransferFunctionDesign:
     def bin_looks(self) -> tuple[np.ndarray, np.ndarray]:
         """``(n_bins, 3)`` colour and ``(n_bins,)`` opacity per bin, 0 opacity where the class is not shown.
 
-        A bin that is not shown takes the colour of the nearest shown bin: the ray caster interpolates colour across
+        Opacity climbs across each step over the intensity model's noise width (:func:`.look.ramped_opacity`). A bin
+        that is not shown takes the colour of the nearest shown bin: the ray caster interpolates colour across
         each step, and a hidden neighbour's colour would otherwise tint the rim of what is shown.
         """
         opacities = np.array([c.opacity if self.is_shown(c.id) else 0.0 for c in self.classes], dtype=np.float64)
-        bin_colors, bin_opacity = self.class_colors[self.labels], opacities[self.labels]
+        bin_colors = self.class_colors[self.labels]
+        bin_opacity = ramped_opacity(opacities[self.labels], self.hierarchy.noise_sd)
         shown = np.flatnonzero(bin_opacity > 0)
         if shown.size:
             nearest = shown[np.argmin(np.abs(np.arange(self.n_bins)[:, None] - shown[None, :]), axis=1)]
@@ -337,6 +359,7 @@ class TransferFunctionDesign:
             "tissue_hierarchy": self.hierarchy.to_dict(),
             "classes": [{**c.to_dict(), "tissue": int(tissue_of_class[c.id])} for c in self.classes],
             "tissues": [t.to_dict() for t in self.tissues],
+            "preview": None if self.preview is None else _preview_to_dict(self.preview),
         }
 
     def to_json(self) -> str:
@@ -375,8 +398,9 @@ class TransferFunctionDesign:
                 spacing=tuple(float(s) for s in spacing) if spacing else None,
                 solo_class=data.get("solo_class"),
                 solo_tissue_id=data.get("solo_tissue"),
+                preview=None if data.get("preview") is None else _preview_from_dict(data["preview"], n_bins),
             )
-        except (KeyError, TypeError, ValueError, IndexError) as error:
+        except (KeyError, TypeError, ValueError, IndexError, zlib.error) as error:
             raise ValueError(f"not a valid IsoSimilarityTF design: {error!r}") from None
 
     @classmethod
@@ -386,6 +410,21 @@ class TransferFunctionDesign:
         except json.JSONDecodeError as error:
             raise ValueError(f"not a valid IsoSimilarityTF design: {error}") from None
         return cls.from_dict(data)
+
+
+def _preview_to_dict(preview: Preview) -> dict:
+    """The preview as JSON: shape, spacing and the bins, zlib-compressed little-endian uint16, in base64."""
+    data = zlib.compress(np.ascontiguousarray(preview.bins, dtype="<u2").tobytes(), 6)
+    return {"shape": list(preview.bins.shape), "spacing": list(preview.spacing), "bins": base64.b64encode(data).decode()}
+
+
+def _preview_from_dict(data: dict, n_bins: int) -> Preview:
+    shape = tuple(int(n) for n in data["shape"])
+    bins = np.frombuffer(zlib.decompress(base64.b64decode(data["bins"])), dtype="<u2")
+    if len(shape) != 3 or bins.size != int(np.prod(shape)) or (bins.size and int(bins.max()) >= n_bins):
+        raise ValueError("the preview does not match its shape or bins")
+    spacing = tuple(float(s) for s in data["spacing"])
+    return Preview(bins=bins.reshape(shape).astype(np.uint16), spacing=spacing, n_bins=n_bins)
 
 
 def _apply_edit(
@@ -418,6 +457,32 @@ def _tissue_count(tissues: Union[int, str], hierarchy: TissueHierarchy) -> int:
     if not 1 <= tissues <= max(hierarchy.max_tissues, 1):
         raise ValueError(f"tissues must be 1 to {hierarchy.max_tissues} (one per class) here; got {tissues}")
     return int(tissues)
+
+
+def _detect_kind(
+    hierarchy: TissueHierarchy, labels: np.ndarray, bin_voxels: np.ndarray, preview: Preview, modality: Optional[str]
+) -> str:
+    """:func:`.look.detect_kind` on the intensity model's own tissues (the automatic grouping)."""
+    if modality is not None:
+        return detect_kind([], [], hierarchy.noise_sd, modality)
+    groups = hierarchy.groups(hierarchy.auto) if hierarchy.order else []
+    tissue_of_bin = np.full(labels.size, -1)
+    bins = np.arange(labels.size, dtype=np.float64)
+    means, voxels = [], []
+    for members in groups:
+        inside = np.isin(labels, members)
+        count = float(bin_voxels[inside].sum())
+        means.append(float(bin_voxels[inside] @ bins[inside]) / count if count else float(bins[inside].mean()))
+        voxels.append(count)
+    order = np.argsort(means)
+    for rank, group in enumerate(order):
+        tissue_of_bin[np.isin(labels, groups[group])] = rank
+    return detect_kind(
+        np.asarray(means)[order],
+        np.asarray(voxels)[order],
+        hierarchy.noise_sd,
+        encloses=lambda outer, inner: enclosure(preview, tissue_of_bin, outer, inner),
+    )
 
 
 def _check_spacing(spacing) -> Optional[tuple[float, float, float]]:
@@ -570,8 +635,8 @@ def design_transfer_function(
             [c.id for c in classes if c.id != background],
             similarity.matrix,
         )
-        # The dtype attribute, never np.asarray: a volume larger than memory must not be loaded for it.
-        kind = detect_kind(np.dtype(getattr(values, "dtype", np.float64)), quantized.value_range, opts["modality"])
+        preview = preview_bins(quantized.bins, spacing, quantized.n_bins)
+        kind = _detect_kind(hierarchy, clusters.labels, bin_voxels, preview, opts["modality"])
     design = TransferFunctionDesign(
         value_range=quantized.value_range,
         n_bins=quantized.n_bins,
@@ -592,6 +657,7 @@ def design_transfer_function(
         kind=kind,
         spacing=spacing,
         similarity=similarity.matrix,
+        preview=preview,
     )
     design.regroup(opts["tissues"])
     design.timings_s = timings

@@ -1,33 +1,45 @@
-"""The default look: colour and opacity of every class, chosen from its tissue and the kind of volume.
+"""The default look: colour, opacity and visibility of every class, chosen from what the picture shows.
 
-What Slicer's presets do, and why we do it too (the presets are read to learn from, not copied):
+The opacity is *visibility-driven* (Ma & Entezari, TVCG 2018, sec. 6; Correa & Ma, TVCG 2011): the design is
+rendered at low resolution (:mod:`.visibility`), each tissue's visibility is measured, and opacities are changed
+until the picture shows what the data holds. Everything is computed from the isovalue bins, never from the values'
+units, so a CT in Hounsfield units, the same CT as 16-bit stored values or as an 8-bit export, and a float copy get
+the same tissues, the same opacities and the same picture.
 
-* **Colours along one ramp** ordered by intensity, dark red -> tan -> ivory -> white, placed by mean value between
-  the lowest shown tissue and the densest real one: one colour per tissue, so neighbouring classes never read as
-  rainbow rings ("wood grain"); on CT, where values are densities, each class at its own mean HU, continuous as in
-  the CT presets. The qualitative palette stays available (``colors="distinct"``).
-* **Opacity per millimetre**: the scalar opacity unit distance is 1 mm whatever the voxel spacing (presets leave
-  VTK's default of 1 world unit, a millimetre in Slicer), so a 0.5 mm volume is not twice as hazy.
-* **Opacity by the kind of volume** (:func:`detect_kind`): CT values are Hounsfield units, so opacity follows a fixed
-  curve of HU (soft tissue nearly clear, bone opaque, no veil); MRI and other uncalibrated scalars get a flat
-  moderate ramp in intensity order that peaks at the main bright tissue (not the brightest one: on a T1 head the
-  brightest tissue is scalp fat, which would hide the brain).
+1. **Which tissues are shown.** Not the background, not a tissue most of whose voxels touch it (noise in the air,
+   the partial-volume rim: fog), the ``max_shown`` largest others, and the densest real tissue always.
+2. **A monotone start**, as every Slicer preset: opacity per mm rises with intensity, from ``OPACITY_LOW`` for the
+   lowest shown tissue to ``OPACITY_HIGH`` for the densest, linear in their rank.
+3. **An enclosing tissue never hides a distinct one inside it.** A *feature* is a real tissue (``REAL_SHARE``) that
+   stands apart from a lower tissue: their means differ by at least ``SEPARATION`` noise widths of the intensity
+   model (bone, contrast-filled vessels, a micro-CT's dense parts over soft tissue or a sample holder; not white
+   matter over grey matter, whose histograms overlap). Rendered alone, a feature shows some light; rendered with
+   the lower tissues it stands apart from, at least ``SEEN`` of that light must still reach the eye. Where it does
+   not, those tissues are made clearer, by the factor the measured transmittance asks for (``T ** s = SEEN``), and
+   the picture is rendered again: Ma & Entezari's loop, which raises the least visible feature until it is seen,
+   turned round, since a feature is already at the top of the ramp.
+4. **Soft boundaries** (:func:`ramped_opacity`): opacity climbs across a step between two bins over the noise width
+   of the intensity model, on the side of the more opaque bin, so the voxel staircase of a coarse volume is not
+   drawn as black contour lines and hidden bins stay hidden.
+
+Colours follow one ramp ordered by intensity (dark red -> tan -> ivory -> white), placed by mean value between the
+lowest shown tissue and the densest real one: one colour per tissue, so neighbouring classes never read as rainbow
+rings; on CT (``kind`` ``"ct"``) each class at its own mean, continuous as in the CT presets. White is kept for a
+densest tissue that is not also the largest one (bone, contrast): a large bright tissue ends at ivory, or the
+headlight washes it out. The qualitative palette stays available (``colors="distinct"``).
 
 Gradient opacity (option ``gradient_opacity="auto"``; ``"off"`` by default) scales opacity by the local gradient: 0
 where the value does not change, 1 from :func:`gradient_ramp_top` up, so homogeneous insides fade and boundaries stay.
-
-Rules that hold for every kind: the background is hidden; a class most of whose voxels touch the background
-(noise in the air, the partial-volume rim) is hidden; the densest real tissue (holding at least ``REAL_SHARE`` of
-the non-background voxels) is always shown; a tiny class never gets more opacity than the nearest real class below
-it, so a few voxels denser than bone never become the most opaque thing in the picture.
 """
 
 from collections.abc import Sequence
-from typing import Optional
+from dataclasses import dataclass
+from typing import Callable, Optional
 
 import numpy as np
 
 from .classes import PALETTE, IsovalueClass
+from .visibility import Preview, enclosure, visibility_histogram
 
 KINDS = ("ct", "mr", "8bit")
 COLOR_SCHEMES = ("ramp", "distinct")
@@ -40,30 +52,51 @@ RAMP = (
     (0.75, (0.94, 0.88, 0.74)),
     (1.00, (1.00, 1.00, 1.00)),
 )
-# CT opacity per mm against Hounsfield units: air and fat clear, soft tissue (0-100 HU) barely there, so it never
-# veils the skull; trabecular bone translucent, cortical bone opaque.
-CT_OPACITY = ((-200.0, 0.0), (100.0, 0.004), (200.0, 0.05), (400.0, 0.35), (800.0, 0.75), (1500.0, 0.85))
-# Uncalibrated scalars: opacity per mm from the lowest shown tissue to the peak tissue, linear in their rank.
-MR_LOW, MR_HIGH = 0.02, 0.5
-# A tissue brighter than the peak (scalp fat on a T1 head) is shown but never emphasised.
-MR_ABOVE_PEAK = 0.03
-# The peak tissue holds at least this share of the non-background voxels (the brain, not 3 % of fat).
-PEAK_SHARE = 0.15
-# A class or tissue with at least this share of the non-background voxels is a real tissue, not stray voxels.
+#: Where a large bright tissue's colour ends: ivory (see the module notes).
+IVORY_PLACE = 0.75
+#: Opacity per mm of the lowest and of the densest shown tissue before the visibility step: a tissue at the top is
+#: opaque within 2-3 mm (a surface), one at the bottom lets half the light through 3.5 cm (a haze you see through).
+OPACITY_LOW, OPACITY_HIGH = 0.02, 0.5
+#: A class or tissue with at least this share of the non-background voxels is a real tissue, not stray voxels.
 REAL_SHARE = 0.01
+#: Two tissues whose means lie this many noise widths apart overlap by under 2.5 % (two Gaussians: the 1-sided tail
+#: beyond 2 sd): they are different materials, not two shades of one.
+SEPARATION = 4.0
+#: A dense tail holds at most this share of the largest tissue's voxels (bone is 5-25 % of a CT's soft tissue; the
+#: tissues above a T1's or a skull-stripped brain's largest one hold 50-100 % of it).
+TAIL_SHARE = 1 / 3
+#: Share of a feature's own light that must still reach the eye through the tissues it stands apart from: what the
+#: eye reads as "seen through a veil" rather than "behind it".
+SEEN = 0.8
+#: Rounds of the visibility step; each sets the clearing factor from the transmittance measured, so 4 suffice.
+VISIBILITY_ROUNDS = 4
 # A class most of whose voxels touch the background is noise in it or the rim around objects.
 FRINGE_CONTACT = 0.5
 BACKGROUND_GREY = [0.5, 0.5, 0.5]
 
 
-def detect_kind(dtype: np.dtype, value_range: Sequence[float], modality: Optional[str] = None) -> str:
-    """The kind of volume: ``"ct"``, ``"mr"`` (uncalibrated scalars) or ``"8bit"``.
+def detect_kind(
+    tissue_means: Sequence[float],
+    tissue_voxels: Sequence[float],
+    noise_sd: float,
+    modality: Optional[str] = None,
+    encloses: Optional[Callable[[int, int], float]] = None,
+) -> str:
+    """The kind of volume: ``"ct"`` (a density scan) or ``"mr"`` (any other scalar), or the caller's hint.
 
     Rule: a modality given by the caller (from the file: DICOM Modality, a NIfTI intent, the user) wins: ``CT`` ->
-    ``"ct"``, ``MR``/``MRI`` -> ``"mr"``. Otherwise data stored in 8 bits (``uint8``/``int8``, or any integers
-    within 0..255) is ``"8bit"``; signed or floating data whose range reaches air in Hounsfield units (minimum at
-    most -900) and bone (maximum at least 300) is ``"ct"``; anything else is ``"mr"``. ``"8bit"`` uses the
-    uncalibrated opacity curve: 8 bits hold MRI templates, ultrasound and microscopy far more often than CT.
+    ``"ct"``, ``MR``/``MRI`` -> ``"mr"``, or a word of :data:`KINDS`. Otherwise the data decides, whatever its units
+    and storage: a CT has air (the background), soft tissue (the largest tissue) and a dense tail enclosed by it: the
+    tissues above the largest hold at most :data:`TAIL_SHARE` of its voxels, and one of them is real, lies
+    :data:`SEPARATION` noise widths above the largest one and is met after it by most rays through both (bone inside the head; not the scalp fat of a T1, which lies around the brain).
+
+    Args:
+        tissue_means: mean bin of each non-background tissue, ascending.
+        tissue_voxels: their voxel counts.
+        noise_sd: the intensity model's noise width, in bins.
+        modality: the caller's hint, or None.
+        encloses: ``encloses(outer, inner)``: share of the rays through both tissues (indices into the lists) that
+            meet ``outer`` first (:func:`.visibility.enclosure`); None skips that test.
     """
     if modality is not None:
         normalized = str(modality).strip().lower()
@@ -74,13 +107,26 @@ def detect_kind(dtype: np.dtype, value_range: Sequence[float], modality: Optiona
         if normalized in KINDS:
             return normalized
         raise ValueError(f"modality must be CT, MR or one of {KINDS}; got {modality!r}")
-    dtype = np.dtype(dtype)
-    low, high = float(value_range[0]), float(value_range[1])
-    if dtype.itemsize == 1 or (dtype.kind in "iu" and low >= 0 and high <= 255):
-        return "8bit"
-    if dtype.kind in "if" and low <= -900 and high >= 300:
-        return "ct"
-    return "mr"
+    return "ct" if dense_tail(tissue_means, tissue_voxels, noise_sd, encloses) else "mr"
+
+
+def dense_tail(
+    tissue_means: Sequence[float],
+    tissue_voxels: Sequence[float],
+    noise_sd: float,
+    encloses: Optional[Callable[[int, int], float]] = None,
+) -> list[int]:
+    """Indices of the tissues that form a CT's dense tail (see :func:`detect_kind`), ascending."""
+    means = np.asarray(tissue_means, dtype=np.float64)
+    voxels = np.asarray(tissue_voxels, dtype=np.float64)
+    if means.size < 2:
+        return []
+    largest = int(np.argmax(voxels))
+    if voxels[largest + 1 :].sum() > TAIL_SHARE * voxels[largest]:
+        return []  # brighter tissues as large as the main one (white matter, a T1's fat and brain): no tail
+    real = voxels >= REAL_SHARE * voxels.sum()
+    candidates = np.flatnonzero(real & (means >= means[largest] + SEPARATION * noise_sd) & (voxels < voxels[largest]))
+    return [int(t) for t in candidates if encloses is None or encloses(largest, int(t)) > 0.5]
 
 
 def ramp_colors(places: np.ndarray) -> np.ndarray:
@@ -92,8 +138,8 @@ def ramp_colors(places: np.ndarray) -> np.ndarray:
 
 
 def class_mean_values(labels: np.ndarray, bin_voxels: np.ndarray, edges: np.ndarray, n_classes: int) -> np.ndarray:
-    """``(n_classes,)`` voxel-weighted mean value of each class, in volume units (bin centres; exemplar centre for
-    an empty class is not needed: an empty class gets the mean of its bins)."""
+    """``(n_classes,)`` voxel-weighted mean value of each class, in the units of ``edges`` (bin centres; an empty
+    class gets the plain mean of its bins). With ``edges = arange(n_bins + 1) - 0.5`` the unit is the bin."""
     centres = 0.5 * (edges[:-1] + edges[1:])
     voxels = np.bincount(labels, weights=bin_voxels, minlength=n_classes)
     weighted = np.bincount(labels, weights=bin_voxels * centres, minlength=n_classes)
@@ -103,27 +149,73 @@ def class_mean_values(labels: np.ndarray, bin_voxels: np.ndarray, edges: np.ndar
     return np.where(voxels > 0, weighted / np.maximum(voxels, 1e-300), plain)
 
 
+def ramped_opacity(bin_opacity: np.ndarray, width_bins: float) -> np.ndarray:
+    """``(n_bins,)`` opacity whose steps climb over ``width_bins`` bins instead of one.
+
+    At each step between neighbouring bins the more opaque side takes a linear ramp from the other side's opacity up
+    to its own over ``round(width_bins)`` bins (at most its run's length): a hidden bin stays hidden, a shown one
+    never gets more opacity than it had.
+    """
+    opacity = np.asarray(bin_opacity, dtype=np.float64)
+    width = int(round(width_bins))
+    out = opacity.copy()
+    if width < 2:
+        return out
+    for step in np.flatnonzero(opacity[1:] != opacity[:-1]) + 1:
+        low, high = sorted((opacity[step - 1], opacity[step]))
+        rising = opacity[step] > opacity[step - 1]
+        for offset in range(width - 1):
+            at = step + offset if rising else step - 1 - offset
+            if not 0 <= at < opacity.size or opacity[at] != high:
+                break
+            out[at] = min(out[at], low + (high - low) * (offset + 1) / width)
+    return out
+
+
+@dataclass(frozen=True)
+class Look:
+    """The default look of every class and what its picture shows.
+
+    Attributes:
+        colors: ``[r, g, b]`` per class, in 0..1.
+        opacities: opacity per mm per class.
+        visible: whether each class is shown.
+        tissue_shares: ``(n_tissues,)`` share of the (low-resolution, six-view) picture each tissue gives, summing
+            to 1 over the tissues, or None without a preview.
+    """
+
+    colors: list[list[float]]
+    opacities: list[float]
+    visible: list[bool]
+    tissue_shares: Optional[np.ndarray] = None
+
+
 def default_look(
     classes: list[IsovalueClass],
     tissue_of_class: np.ndarray,
     class_values: np.ndarray,
     kind: str,
     *,
+    labels: Optional[np.ndarray] = None,
+    class_bins: Optional[np.ndarray] = None,
+    noise_sd: float = 1.0,
+    preview: Optional[Preview] = None,
     colors: str = "ramp",
     max_shown: int = 15,
-) -> tuple[list[list[float]], list[float], list[bool]]:
-    """Colour, opacity and visibility of every class.
+) -> Look:
+    """Colour, opacity and visibility of every class (see the module notes).
 
     Args:
-        classes: the classes, in id order (``background`` and ``background_contact`` are read).
+        classes: the classes, in id order (``background``, ``voxels`` and ``background_contact`` are read).
         tissue_of_class: ``(n_classes,)`` tissue id per class; tissue ids increase with intensity.
-        class_values: ``(n_classes,)`` mean value of each class in volume units (Hounsfield units for CT).
-        kind: one of :data:`KINDS`.
+        class_values: ``(n_classes,)`` mean value of each class in volume units (colours on CT).
+        kind: one of :data:`KINDS` (colours only).
+        labels: ``(n_bins,)`` class id per bin; needed with ``preview``.
+        class_bins: ``(n_classes,)`` mean bin of each class (default: ``class_values``, when they are bins).
+        noise_sd: the intensity model's noise width, in bins.
+        preview: the low-resolution volume the visibility step renders (None: the monotone start only).
         colors: ``"ramp"`` (one ramp colour per tissue) or ``"distinct"`` (one palette colour per tissue, by size).
         max_shown: at most this many tissues are shown, the largest first (the densest real one always).
-
-    Returns:
-        ``(colors, opacities, visible)``, one entry per class; opacity is per mm.
     """
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {KINDS}; got {kind!r}")
@@ -131,6 +223,7 @@ def default_look(
         raise ValueError(f"colors must be one of {COLOR_SCHEMES}; got {colors!r}")
     tissue_of_class = np.asarray(tissue_of_class)
     class_values = np.asarray(class_values, dtype=np.float64)
+    class_bins = class_values if class_bins is None else np.asarray(class_bins, dtype=np.float64)
     n_tissues = int(tissue_of_class.max()) + 1 if tissue_of_class.size else 0
     voxels = np.array([c.voxels for c in classes], dtype=np.float64)
     contact = np.array([c.background_contact for c in classes])
@@ -139,38 +232,77 @@ def default_look(
     tissue_contact = np.bincount(tissue_of_class, weights=voxels * contact, minlength=n_tissues) / np.maximum(
         tissue_voxels, 1
     )
+    weight = np.maximum(voxels, 1e-9)  # an empty class still places its tissue
+    tissue_bin = np.bincount(tissue_of_class, weights=weight * class_bins, minlength=n_tissues) / np.maximum(
+        np.bincount(tissue_of_class, weights=weight, minlength=n_tissues), 1e-300
+    )
     background_tissues = set(tissue_of_class[is_background].tolist())
     foreground = [t for t in range(n_tissues) if t not in background_tissues and tissue_voxels[t] > 0]
     total = float(sum(tissue_voxels[t] for t in foreground)) or 1.0
     share = tissue_voxels / total
 
-    # Visible tissues: not on the background's fringe, the largest `max_shown`, and the densest real one always.
-    inner = [t for t in foreground if tissue_contact[t] <= FRINGE_CONTACT] or foreground
+    # 1. Visible tissues: not fog (on the background's fringe, or no further from the background's intensity than
+    # noise explains), the largest `max_shown`, and the densest real one always.
+    background_bin = float(class_bins[is_background][0]) if is_background.any() else -np.inf
+    inner = [
+        t
+        for t in foreground
+        if tissue_contact[t] <= FRINGE_CONTACT and tissue_bin[t] - background_bin >= SEPARATION * noise_sd
+    ] or foreground
     shown = set(sorted(inner, key=lambda t: (-tissue_voxels[t], t))[:max_shown])
     real = [t for t in foreground if share[t] >= REAL_SHARE]
     if real:
-        shown.add(max(real))
-    shown_sorted = sorted(shown)
+        shown.add(max(real, key=lambda t: tissue_bin[t]))
+    shown_sorted = sorted(shown, key=lambda t: tissue_bin[t])
 
-    # Colours: one per tissue (per class on CT, see below).
+    # 2. The monotone start, 3. the visibility step.
+    tissue_opacity = np.zeros(n_tissues)
+    labels = None if labels is None else np.asarray(labels)
+    for rank, t in enumerate(shown_sorted):
+        place = rank / (len(shown_sorted) - 1) if len(shown_sorted) > 1 else 1.0
+        tissue_opacity[t] = OPACITY_LOW + (OPACITY_HIGH - OPACITY_LOW) * place
+    for t in foreground:
+        if t not in shown:
+            tissue_opacity[t] = OPACITY_LOW  # what a user who shows it starts from
+    shares = None
+    if preview is not None and labels is not None and shown_sorted:
+        step = _VisibilityStep(preview, tissue_of_class[np.asarray(labels)], shown_sorted, tissue_bin, noise_sd)
+        real_shown = [t for t in shown_sorted if share[t] >= REAL_SHARE]
+        if kind == "ct":
+            ordered = np.array(foreground)
+            dense = dense_tail(
+                tissue_bin[ordered], tissue_voxels[ordered], noise_sd,
+                lambda a, b: enclosure(preview, step.tissue_of_bin, int(ordered[a]), int(ordered[b])),
+            )  # fmt: skip
+            features = [int(ordered[i]) for i in dense] or real_shown[-1:]
+            tissue_opacity = step.show_features(tissue_opacity, features)
+        else:
+            tissue_opacity = step.outer_surface(tissue_opacity, real_shown)
+        tissue_opacity = _follow_real(tissue_opacity, shown_sorted, real_shown)
+        shares = step.shares(tissue_opacity)
+        # Each class takes the mean opacity of its bins: a feature's partial-volume ramp reaches into its classes.
+        bin_opacity = step.bin_opacity(tissue_opacity)
+        class_opacity = np.bincount(labels, weights=bin_opacity, minlength=len(classes)) / np.maximum(
+            np.bincount(labels, minlength=len(classes)), 1
+        )
+
+    # Colours: one per tissue (per class on CT).
     tissue_color = {t: list(BACKGROUND_GREY) for t in range(n_tissues)}
     class_color: dict[int, list[float]] = {}
     if colors == "ramp" and foreground:  # without a foreground (a single class, the background) nothing is coloured
-        # A place on the ramp is a mean value between the lowest shown tissue's (dark red) and the densest real
-        # tissue's (white), so the colour says how dense it is, as in the presets. On CT the value is a physical
-        # density (HU) and the presets' colour follows it continuously, so each class takes the colour of its own
-        # mean value: trabecular bone in the soft-tissue tissue is still ivory, cortical bone white. On uncalibrated
-        # data one colour per tissue.
         tissue_value = np.bincount(tissue_of_class, weights=voxels * class_values, minlength=n_tissues) / np.maximum(
             tissue_voxels, 1
         )
         anchors = shown_sorted or foreground
         low = tissue_value[anchors[0]]
-        high = tissue_value[max(real)] if real else tissue_value[anchors[-1]]
+        top = max(real, key=lambda t: tissue_bin[t]) if real else anchors[-1]
+        high = tissue_value[top]
+        largest_shown = max(anchors, key=lambda t: tissue_voxels[t])
+        end = IVORY_PLACE if top == largest_shown and len(anchors) > 1 else 1.0
 
         def ramp_at(value: float) -> list[float]:
-            place = (value - low) / (high - low) if high > low else 1.0
-            return [float(v) for v in ramp_colors(np.array([place]))[0]]
+            place = end * (value - low) / (high - low) if high > low else end
+            return [float(v) for v in ramp_colors(np.array([min(place, end)]))[0]]
 
         for t in foreground:
             tissue_color[t] = ramp_at(tissue_value[t])
@@ -180,51 +312,138 @@ def default_look(
         for i, t in enumerate(sorted(foreground, key=lambda t: (-tissue_voxels[t], t))):
             tissue_color[t] = list(PALETTE[i % len(PALETTE)])
 
-    # Opacity: per class for CT (a curve of HU), per tissue otherwise (a ramp in tissue order).
-    opacity = np.zeros(len(classes))
-    if kind == "ct":
-        hu, alpha = zip(*CT_OPACITY)
-        opacity = np.interp(class_values, hu, alpha)
-    else:
-        tissue_opacity = np.zeros(n_tissues)
-        peaks = [t for t in shown_sorted if share[t] >= PEAK_SHARE] or shown_sorted
-        peak = max(peaks) if peaks else 0
-        below = [t for t in shown_sorted if t <= peak]
-        for rank, t in enumerate(below):
-            place = rank / (len(below) - 1) if len(below) > 1 else 1.0
-            tissue_opacity[t] = MR_LOW + (MR_HIGH - MR_LOW) * place
-        for t in foreground:
-            if t > peak:
-                tissue_opacity[t] = MR_ABOVE_PEAK
-            elif t not in below:
-                tissue_opacity[t] = MR_LOW
-        opacity = tissue_opacity[tissue_of_class]
-    opacity = _cap_tiny(opacity, voxels, is_background, class_values)
+    opacity = tissue_opacity[tissue_of_class] if tissue_of_class.size else np.zeros(0)
+    if shares is not None:
+        shown_class = np.isin(tissue_of_class, shown_sorted)
+        opacity = np.where(shown_class, np.maximum(class_opacity, 0.0), opacity)
     opacity[is_background] = 0.0
-
     visible = [bool(tissue_of_class[c.id] in shown) and not c.background for c in classes]
     colors_out = [
         list(BACKGROUND_GREY) if c.background else class_color.get(c.id, tissue_color[tissue_of_class[c.id]])
         for c in classes
     ]
-    return colors_out, [float(a) for a in opacity], visible
+    return Look(colors_out, [float(a) for a in opacity], visible, shares)
 
 
-def _cap_tiny(opacity: np.ndarray, voxels: np.ndarray, is_background: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """A class below ``REAL_SHARE`` of the non-background voxels gets at most the opacity of the nearest real class
-    below it in intensity (or the lowest real opacity when none is below)."""
-    foreground = ~is_background
-    total = float(voxels[foreground].sum()) or 1.0
-    real = foreground & (voxels >= REAL_SHARE * total)
-    if not real.any():
-        return opacity.copy()
-    capped = opacity.copy()
-    real_ids = np.flatnonzero(real)
-    for c in np.flatnonzero(foreground & ~real):
-        lower = real_ids[values[real_ids] <= values[c]]
-        ceiling = opacity[lower[np.argmax(values[lower])]] if lower.size else opacity[real_ids].min()
-        capped[c] = min(opacity[c], ceiling)
-    return capped
+def _follow_real(opacity: np.ndarray, shown: list[int], real: list[int]) -> np.ndarray:
+    """A shown tissue below ``REAL_SHARE`` takes the opacity of the nearest real tissue below it (the lowest real
+    one when none is below): a few stray voxels never stand out, nor vanish."""
+    if not real:
+        return opacity
+    opacity = opacity.copy()
+    for t in shown:
+        if t not in real:
+            below = [r for r in real if shown.index(r) < shown.index(t)]
+            opacity[t] = opacity[below[-1] if below else real[0]]
+    return opacity
+
+
+class _VisibilityStep:
+    """Renders of one design's preview with per-tissue opacities (step 3 of the module notes).
+
+    Args:
+        preview: the low-resolution volume.
+        tissue_of_bin: ``(n_bins,)`` tissue of each bin.
+        shown: the shown tissues (the others stay clear).
+        tissue_bin: ``(n_tissues,)`` mean bin of each tissue.
+        noise_sd: noise width in bins.
+    """
+
+    def __init__(
+        self, preview: Preview, tissue_of_bin: np.ndarray, shown: list[int], tissue_bin: np.ndarray, noise_sd: float
+    ) -> None:
+        self.preview = preview
+        self.tissue_of_bin = tissue_of_bin
+        self.n_tissues = int(tissue_of_bin.max()) + 1
+        self.shown = np.isin(np.arange(self.n_tissues), shown)
+        self.tissue_bin = tissue_bin
+        self.noise_sd = float(noise_sd)
+        self.rays = preview.rays_crossing(tissue_of_bin, self.n_tissues)
+        # Partial volume of a feature: (first bin, lower tissue, feature) where its ramp starts (see show_features).
+        self.ramps: list[tuple[int, int, int]] = []
+
+    def bin_opacity(self, opacity: np.ndarray) -> np.ndarray:
+        """``(n_bins,)`` opacity per mm of each bin: its tissue's (0 where not shown), a feature's partial volume
+        ramped up to it, and every step softened over the noise width (:func:`ramped_opacity`)."""
+        per_bin = np.where(self.shown, opacity, 0.0)[self.tissue_of_bin]
+        for start, lower, feature in self.ramps:
+            end = int(np.flatnonzero(self.tissue_of_bin == feature)[0])
+            inside = np.arange(start, end)
+            inside = inside[self.shown[self.tissue_of_bin[inside]]]
+            place = (inside - start + 1) / (end - start + 1)
+            ramp = opacity[lower] + (opacity[feature] - opacity[lower]) * place
+            per_bin[inside] = np.maximum(per_bin[inside], ramp)
+        return ramped_opacity(per_bin, max(self.noise_sd, 1.0))
+
+    def light(self, opacity: np.ndarray) -> np.ndarray:
+        """``(n_tissues,)`` light each tissue sends to the eye over the six views, with these opacities per mm."""
+        light = visibility_histogram(self.preview, self.bin_opacity(opacity))
+        return np.bincount(self.tissue_of_bin, weights=light, minlength=self.n_tissues)
+
+    def shares(self, opacity: np.ndarray) -> np.ndarray:
+        """``(n_tissues,)`` share of the picture each tissue gives (0 everywhere for an empty picture)."""
+        light = self.light(opacity)
+        total = light.sum()
+        return light / total if total > 0 else light
+
+    def make_seen(self, opacity: np.ndarray, tissue: int) -> np.ndarray:
+        """Raise a tissue's opacity until, rendered alone, it gives ``SEEN`` of the light of the rays that cross it
+        (a surface where it lies). Its visibility is about ``1 - (1 - a) ** L`` for an effective thickness ``L``,
+        which gives the opacity asked; never lowered."""
+        opacity = opacity.copy()
+        alone = np.where(np.arange(self.n_tissues) == tissue, opacity, 0.0)
+        seen = self.light(alone)[tissue] / max(self.rays[tissue], 1)
+        if 0 < seen < SEEN and opacity[tissue] > 0:
+            thickness = np.log1p(-seen) / np.log1p(-opacity[tissue])
+            opacity[tissue] = min(1.0, -np.expm1(np.log1p(-SEEN) / thickness))
+        return opacity
+
+    def show_features(self, opacity: np.ndarray, features: list[int]) -> np.ndarray:
+        """CT-like data: every feature (a tissue of the dense tail) is a surface where it lies, its partial volume
+        is ramped in from where the tissue below it ends (``SEPARATION`` noise widths above that tissue's mean: a
+        thin bone blurred below the feature's range is still drawn), and the tissues below it that stand apart from
+        it keep at least ``SEEN`` of its light (the enclosing soft tissue is cleared)."""
+        shown = np.flatnonzero(self.shown)
+        apart = {}
+        for f in features:
+            opacity = self.make_seen(opacity, f)
+            lower = [int(o) for o in shown if self.tissue_bin[f] - self.tissue_bin[o] >= SEPARATION * self.noise_sd]
+            if lower:
+                apart[f] = lower
+                below = max(lower, key=lambda o: self.tissue_bin[o])
+                start = int(np.ceil(self.tissue_bin[below] + SEPARATION * self.noise_sd))
+                self.ramps.append((start, below, f))
+        alone = {}
+        for f, lower in apart.items():
+            cleared = opacity.copy()
+            cleared[lower] = 0.0
+            alone[f] = self.light(cleared)[f]
+        light = self.light(opacity)
+        for _ in range(VISIBILITY_ROUNDS):
+            factor = np.ones(self.n_tissues)
+            for f, lower in apart.items():
+                kept = light[f] / alone[f] if alone[f] > 0 else 1.0
+                if kept < SEEN:
+                    # The lower tissues' transmittance T in front of f: scaling their opacity by s gives about T ** s.
+                    factor[lower] = np.minimum(factor[lower], np.log(SEEN) / np.log(max(kept, 1e-12)))
+            if np.all(factor >= 1.0):
+                break
+            opacity = opacity * factor
+            light = self.light(opacity)
+        return opacity
+
+    def outer_surface(self, opacity: np.ndarray, real: list[int]) -> np.ndarray:
+        """Other data: the real tissue that encloses the others (met first by most rays through it and another) is
+        made a surface where it lies, as MR-Default shows a head's skin and a brain's cortex."""
+        if not real:
+            return opacity
+        if len(real) == 1:
+            return self.make_seen(opacity, real[0])
+
+        def encloses_others(t: int) -> float:
+            return float(np.mean([enclosure(self.preview, self.tissue_of_bin, t, o) for o in real if o != t]))
+
+        return self.make_seen(opacity, max(real, key=encloses_others))
 
 
 def gradient_ramp_top(tissue_values: Sequence[float], boundary_mm: float = 2.0) -> float:

@@ -262,11 +262,13 @@ class TissueHierarchy:
         order: non-background class ids in intensity (exemplar) order.
         boundaries: positions ``b`` (a cut between ``order[b - 1]`` and ``order[b]``), most important first.
         auto: the number of tissues the intensity model chose.
+        noise_sd: the model's shared noise width, in bins (how far apart two tissues must lie to be told apart).
     """
 
     order: tuple[int, ...]
     boundaries: tuple[int, ...]
     auto: int
+    noise_sd: float = 1.0
 
     @property
     def max_tissues(self) -> int:
@@ -280,7 +282,12 @@ class TissueHierarchy:
         return [list(self.order[a:b]) for a, b in zip(cuts[:-1], cuts[1:])]
 
     def to_dict(self) -> dict:
-        return {"order": list(self.order), "boundaries": list(self.boundaries), "auto": self.auto}
+        return {
+            "order": list(self.order),
+            "boundaries": list(self.boundaries),
+            "auto": self.auto,
+            "noise_sd": self.noise_sd,
+        }
 
     @classmethod
     def from_dict(cls, data: dict) -> "TissueHierarchy":
@@ -288,7 +295,8 @@ class TissueHierarchy:
         boundaries = tuple(int(b) for b in data["boundaries"])
         if sorted(boundaries) != list(range(1, len(order))):
             raise ValueError("tissue boundaries must rank every cut between neighbouring classes once")
-        return cls(order=order, boundaries=boundaries, auto=int(data["auto"]))
+        # Designs saved before the noise width was kept: one bin, the histogram's resolution.
+        return cls(order=order, boundaries=boundaries, auto=int(data["auto"]), noise_sd=float(data.get("noise_sd", 1.0)))
 
 
 def tissue_hierarchy(
@@ -327,7 +335,9 @@ def tissue_hierarchy(
     members = [np.flatnonzero(labels == c) for c in order]
     merged_at = _agglomerate(tissue, members, counts, similarity)
     auto = len(np.unique(tissue))
-    return TissueHierarchy(order=tuple(int(c) for c in order), boundaries=tuple(merged_at[::-1]), auto=auto)
+    return TissueHierarchy(
+        order=tuple(int(c) for c in order), boundaries=tuple(merged_at[::-1]), auto=auto, noise_sd=float(model.sd)
+    )
 
 
 def _agglomerate(

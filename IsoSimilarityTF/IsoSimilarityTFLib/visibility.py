@@ -1,0 +1,132 @@
+"""What a transfer function shows: a small numpy ray caster measuring each bin's share of the picture.
+
+The visibility of a sample is the light it sends to the eye: the transmittance in front of it times its alpha
+(Correa & Ma, "Visibility histograms and visibility-driven transfer functions", TVCG 2011). Summed over every ray
+by isovalue bin it is the *visibility histogram*; summed by tissue it says which tissue gives the picture. The
+look (:mod:`.look`) sets opacities from it, so it must be fast and depend only on the quantized volume:
+
+* **A preview** (:func:`preview_bins`): every s-th voxel along each axis, steps chosen so the voxels are about
+  cubic in mm and at most ``max_voxels`` remain. Nearest sampling keeps the bins exact (an average would invent
+  intensities between tissues).
+* **Orthographic rays along the preview's axes**, both ways (the six views of Slicer's view buttons), one per voxel
+  column, one sample per voxel. Front-to-back compositing is a cumulative product, so a whole direction is one
+  vectorized pass: ``T = exp(cumsum(log(1 - alpha)))`` shifted by one sample.
+* **Opacity per millimetre**, as the design writes it (unit distance 1 mm): a sample of a step of ``d`` mm has
+  ``alpha = 1 - (1 - a) ** d``.
+
+Perspective, trilinear sampling and shading are left out: none of them changes which tissue a ray stops in.
+Arrays are indexed ``[k, j, i]`` (z, y, x), spacing is ``(x, y, z)`` in mm, as everywhere in the library.
+"""
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+#: Voxels of the preview: 48^3 resolves a 5 mm skull on a 24 cm head and renders in a few milliseconds.
+PREVIEW_VOXELS = 48**3
+# Largest alpha a sample may have: keeps log(1 - alpha) finite (an opaque sample still passes 1e-9 of the light).
+_MAX_ALPHA = 1.0 - 1e-9
+
+
+@dataclass(frozen=True)
+class Preview:
+    """A strided copy of the quantized volume, and which rays cross which bins.
+
+    Attributes:
+        bins: ``(nz, ny, nx)`` isovalue bins of every ``step``-th voxel.
+        spacing: ``(x, y, z)`` voxel size of the preview in mm.
+        n_bins: number of isovalue bins.
+    """
+
+    bins: np.ndarray
+    spacing: tuple[float, float, float]
+    n_bins: int
+
+    def rays_crossing(self, group_of_bin: np.ndarray, n_groups: int) -> np.ndarray:
+        """``(n_groups,)`` number of rays (over the six directions) that pass through a voxel of each group.
+
+        Args:
+            group_of_bin: ``(n_bins,)`` group (tissue) of each bin, -1 for none.
+            n_groups: number of groups.
+        """
+        groups = np.asarray(group_of_bin)[self.bins]
+        counts = np.zeros(n_groups, dtype=np.int64)
+        for group in range(n_groups):
+            inside = groups == group
+            # A ray along an axis and its opposite cross the same voxels: count each column twice.
+            counts[group] = 2 * sum(int(inside.any(axis=axis).sum()) for axis in range(3))
+        return counts
+
+
+def preview_bins(bins: np.ndarray, spacing: Optional[Sequence[float]], n_bins: int,
+                 max_voxels: int = PREVIEW_VOXELS) -> Preview:
+    """The preview of a quantized volume (see the module notes).
+
+    Args:
+        bins: ``(nz, ny, nx)`` integer bins in ``[0, n_bins)``, a numpy or dask array (only the kept voxels are read).
+        spacing: ``(x, y, z)`` voxel size in mm; None for 1 mm.
+        n_bins: number of bins.
+        max_voxels: at most this many voxels are kept.
+    """
+    shape = np.asarray(np.shape(bins), dtype=np.float64)
+    spacing_zyx = np.asarray(spacing[::-1] if spacing is not None else (1.0, 1.0, 1.0), dtype=np.float64)
+    extent = shape * spacing_zyx
+    # The preview's voxel edge in mm: the volume's extent cut into at most max_voxels cubes.
+    edge = float(np.prod(extent) / max_voxels) ** (1.0 / 3.0)
+    steps = np.maximum(1, np.round(edge / spacing_zyx)).astype(int)
+    while np.prod(np.ceil(shape / steps)) > max_voxels:
+        steps[np.argmin(steps * spacing_zyx)] += 1  # coarsen the finest axis first
+    kept = np.asarray(bins[:: steps[0], :: steps[1], :: steps[2]])
+    preview_spacing = spacing_zyx * steps
+    return Preview(
+        bins=kept.astype(np.intp if n_bins > 65535 else np.uint16, copy=False),
+        spacing=(float(preview_spacing[2]), float(preview_spacing[1]), float(preview_spacing[0])),
+        n_bins=int(n_bins),
+    )
+
+
+def visibility_histogram(preview: Preview, opacity_per_mm: np.ndarray) -> np.ndarray:
+    """``(n_bins,)`` light each bin sends to the eye, summed over the rays of the six axis directions.
+
+    Args:
+        preview: the volume (see :func:`preview_bins`).
+        opacity_per_mm: ``(n_bins,)`` scalar opacity of each bin, per mm (the transfer function's, unit distance
+            1 mm), in [0, 1].
+
+    Returns:
+        The visibility of each bin; summed over the bins, the opacity of all pixels of the six views.
+    """
+    opacity = np.clip(np.asarray(opacity_per_mm, dtype=np.float64), 0.0, 1.0)
+    log_clear = np.log1p(-np.minimum(opacity, _MAX_ALPHA)).astype(np.float32)  # log(1 - a) per mm
+    visibility = np.zeros(preview.n_bins)
+    spacing_zyx = preview.spacing[::-1]
+    for axis in range(3):
+        # log(1 - alpha) of each sample over a step along this axis; the rays run along axis 0 of the view.
+        log_t = np.moveaxis(log_clear[preview.bins], axis, 0) * np.float32(spacing_zyx[axis])
+        behind = np.cumsum(log_t, axis=0)  # log transmittance of a ray from the first sample to each one's far side
+        # Light of each sample seen from the front (transmittance of the samples before it) and from the back.
+        seen = np.exp(behind - log_t) + np.exp(behind[-1] - behind)
+        seen *= -np.expm1(log_t)  # times the sample's alpha
+        bins = np.moveaxis(preview.bins, axis, 0)
+        visibility += np.bincount(bins.ravel(), weights=seen.ravel(), minlength=preview.n_bins)
+    return visibility
+
+
+def enclosure(preview: Preview, group_of_bin: np.ndarray, outer: int, inner: int) -> float:
+    """Share of the rays through both groups that meet ``outer`` before ``inner`` (six directions): near 1 when
+    ``outer`` encloses ``inner`` (skin around bone), near 0 the other way round, 0 when no ray crosses both."""
+    groups = np.asarray(group_of_bin)[preview.bins]
+    first_outer = 0
+    both = 0
+    for axis in range(3):
+        is_outer = np.moveaxis(groups == outer, axis, 0)
+        is_inner = np.moveaxis(groups == inner, axis, 0)
+        for ordered_outer, ordered_inner in ((is_outer, is_inner), (is_outer[::-1], is_inner[::-1])):
+            crosses = ordered_outer.any(axis=0) & ordered_inner.any(axis=0)
+            # argmax gives the first True along the ray (n where there is none is never compared: crosses).
+            before = np.argmax(ordered_outer, axis=0) < np.argmax(ordered_inner, axis=0)
+            first_outer += int((before & crosses).sum())
+            both += int(crosses.sum())
+    return first_outer / both if both else 0.0
