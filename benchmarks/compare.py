@@ -56,6 +56,7 @@ HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
+from panel import PANEL  # noqa: E402
 from picture_metrics import picture_metrics, resize_area  # noqa: E402
 from slicer_presets import ATTRIBUTION, PresetsNotFound, PresetsSource, find_presets, read_presets  # noqa: E402
 from tissue_visibility import (  # noqa: E402
@@ -86,7 +87,10 @@ class Case:
 
     Attributes:
         key: short name (file names). title: shown on the montage. kind: "CT" or "MRI".
-        load: returns ``(values [k, j, i], ijk_to_ras 4x4, labels or None, tissue names or None)``.
+        load: returns ``(values [k, j, i], ijk_to_ras 4x4, labels or None, tissue names or None)``, and for the
+            panel (``panel.PANEL``) a fifth item: the storage map ``(slope, offset)`` from HU, or None.
+        shown_for: the labels a user scanned for: their share of the picture is the panel's target.
+        fog: the label (air) that must take no share of the picture.
         presets: the suited presets; ``best``: the one the targets compare with.
         source: where the data comes from.
     """
@@ -99,6 +103,8 @@ class Case:
     best: str
     source: str
     available: Callable[[], bool] = field(default=lambda: True)
+    shown_for: tuple[str, ...] = ()
+    fog: str | None = None
 
 
 #: The phantom's noise (HU) and blur (mm): ``head_phantom``'s defaults, which ``isosimtf phantom`` uses.
@@ -127,6 +133,8 @@ def _file(path: str) -> Callable[[], tuple]:
 HEAD_CT = "/usr/share/doc/invesalius-examples/examples/Cranium.inv3"
 COLIN = "/usr/share/mricron/templates/ch2.nii.gz"
 COLIN_BET = "/usr/share/mricron/templates/ch2bet.nii.gz"
+
+_PRESETS_OF = {"CT": (CT_PRESETS, "CT-Bone"), "micro-CT": (CT_PRESETS, "CT-Bone"), "MRI": (MR_PRESETS, "MR-Default")}
 
 CASES = (
     Case("phantom", "Phantom (CT-like, HU, 128^3)", "CT", _phantom, CT_PRESETS, "CT-Bone", "isosimtf phantom, seed 0"),
@@ -160,7 +168,14 @@ CASES = (
         f"Debian mricron-data, {COLIN_BET}",
         lambda: Path(COLIN_BET).is_file(),
     ),
-)
+    # The panel (issue 16): storages, resolutions, other real volumes, synthetic CTA and micro-CT; none was used to
+    # set a constant.
+    *(
+        Case(p.key, p.title, p.kind, p.load, _PRESETS_OF[p.kind][0], _PRESETS_OF[p.kind][1], p.source, p.available,
+             p.shown_for, p.fog)
+        for p in PANEL
+    ),
+)  # fmt: skip
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -177,8 +192,14 @@ class Look:
     property_node: Any
 
 
-def prepare_looks(headless: Any, volume_node: Any, values: np.ndarray, spacing, presets: Sequence[str]) -> list[Look]:
-    """Slicer's first click, ours and the presets as property nodes of one scene (the first click first made)."""
+def prepare_looks(
+    headless: Any, volume_node: Any, values: np.ndarray, spacing, presets: Sequence[str], storage=None
+) -> list[Look]:
+    """Slicer's first click, ours and the presets as property nodes of one scene (the first click first made).
+
+    ``storage``: ``(slope, offset)`` of a CT stored as ``slope * HU + offset``: the presets are mapped onto the stored
+    values (what a user does with the Shift slider, and for 8 bits a rescale too), titled "(mapped)".
+    """
     from IsoSimilarityTFLib import design_transfer_function
     from IsoSimilarityTFLib.mrml import apply_design
 
@@ -200,8 +221,33 @@ def prepare_looks(headless: Any, volume_node: Any, values: np.ndarray, spacing, 
             continue
         node = headless.scene.AddNewNodeByClass("vtkMRMLVolumePropertyNode", name)
         node.CopyContent(preset)  # what the preset menu does (qSlicerVolumeRenderingPresetComboBox::applyPreset)
-        looks.append(Look(name, name, node))
+        mapped = storage is not None and tuple(storage) != (1.0, 0.0)
+        if mapped:
+            map_property(node.GetVolumeProperty(), *storage)
+        looks.append(Look(name, f"{name} (mapped)" if mapped else name, node))
     return looks
+
+
+def map_property(volume_property: Any, slope: float, offset: float) -> None:
+    """Move a volume property's functions from HU to values stored as ``slope * HU + offset``: the scalar opacity
+    and colour points by that map, the gradient opacity points (units per mm) by the slope."""
+    functions = (
+        (volume_property.GetScalarOpacity(), 4, offset),
+        (volume_property.GetGradientOpacity(), 4, 0.0),
+        (volume_property.GetRGBTransferFunction(), 6, offset),
+    )
+    for function, size, shift in functions:
+        nodes = []
+        for index in range(function.GetSize()):
+            node = [0.0] * size
+            function.GetNodeValue(index, node)
+            nodes.append(node)
+        function.RemoveAllPoints()  # re-added in order: moving points one by one would pass their neighbours
+        for x, *rest in nodes:
+            if size == 4:
+                function.AddPoint(x * slope + shift, rest[0], rest[1], rest[2])
+            else:
+                function.AddRGBPoint(x * slope + shift, *rest)
 
 
 def show(headless: Any, volume_node: Any, look: Look) -> None:
@@ -269,9 +315,11 @@ HEADER_TEXT = (235, 235, 235)
 GOOD, BAD = (120, 220, 120), (240, 120, 110)
 
 
-def metric_line(metrics: dict) -> str:
-    """``B 112 | N 3.4 | C 41%``: brightness, colour noise, coverage."""
-    return f"B {metrics['brightness']:.0f} | N {metrics['colour_noise']:.2f} | C {100 * metrics['coverage']:.0f}%"
+def metric_line(metrics: dict, share: float | None = None) -> str:
+    """``B 112 | N 3.4 | C 41% | V 64%``: brightness, colour noise, coverage, and the share of the picture from what
+    the user scanned for when the volume says what that is."""
+    line = f"B {metrics['brightness']:.0f} | N {metrics['colour_noise']:.2f} | C {100 * metrics['coverage']:.0f}%"
+    return line if share is None else f"{line} | V {100 * share:.0f}%"
 
 
 def montage(
@@ -281,8 +329,10 @@ def montage(
     views: Sequence[str],
     columns: Sequence[tuple[str, str]],
     tile: int = 384,
+    shares: dict[tuple[str, str], float] | None = None,
 ) -> np.ndarray:
-    """A labelled grid: one row per view, one column per look (``(name, title)``), metrics under each tile."""
+    """A labelled grid: one row per view, one column per look (``(name, title)``), metrics under each tile (and
+    ``shares``, the share of each picture from what the user scanned for, when given)."""
     from isosimtf.figures import draw_text
 
     gap, left, head, foot, top = 6, 84, 26, 22, 34
@@ -302,7 +352,8 @@ def montage(
             if picture is None:
                 continue
             image[y : y + tile, x : x + tile] = resize_area(picture, tile, tile)
-            draw_text(image, metric_line(metrics[(view, name)]), x + 4, y + tile + 3, 13, HEADER_TEXT)
+            line = metric_line(metrics[(view, name)], (shares or {}).get((view, name)))
+            draw_text(image, line, x + 4, y + tile + 3, 13, HEADER_TEXT)
     return image
 
 
@@ -332,28 +383,37 @@ def run_case(case: Case, presets: PresetsSource, size: int, gpu: bool, backdrop:
     from isosimtf.rendering import HeadlessSlicer, write_png
 
     started = time.perf_counter()
-    values, ijk_to_ras, labels, tissues = case.load()
+    loaded = case.load()
+    values, ijk_to_ras, labels, tissues = loaded[:4]
+    storage = loaded[4] if len(loaded) > 4 else None
     spacing = tuple(float(s) for s in np.linalg.norm(np.asarray(ijk_to_ras)[:3, :3], axis=0))
     pictures: dict[tuple[str, str], np.ndarray] = {}
     background = (0.0, 0.0, 0.0) if backdrop == "black" else None
     with HeadlessSlicer(size=(size, size), presets_file=presets.path, background=background) as headless:
         volume_node = headless.add_volume(values, name=case.key, ijk_to_ras=ijk_to_ras)
-        looks = prepare_looks(headless, volume_node, values, spacing, case.presets)
+        looks = prepare_looks(headless, volume_node, values, spacing, case.presets, storage)
         for view in VIEWS:
             for name, picture in render_view(headless, volume_node, looks, view, size).items():
                 pictures[(view, name)] = picture
         gpu_check = gpu_lookup_table_check(values, ijk_to_ras, looks, presets.path) if gpu else {"skipped": True}
-        tissue_stats = (
-            tissue_statistics(values, ijk_to_ras, labels, tissues, looks, spacing) if labels is not None else {}
-        )
         design = looks[0].design  # type: ignore[attr-defined]
+        if labels is None:  # no ground truth: our own tissues, as the design groups them
+            labels, tissues = design_tissue_labels(design, values)
+        tissue_stats = tissue_statistics(
+            values, ijk_to_ras, labels, tissues, looks, spacing, partial_volume=case.key == "phantom"
+        )
         picked = looks[1].picked  # type: ignore[attr-defined]
         columns = [(look.name, look.title) for look in looks]
         empty = headless.backdrop()
     metrics = {key: picture_metrics(picture, empty) for key, picture in pictures.items()}
     RESULTS.mkdir(parents=True, exist_ok=True)
     montage_path = RESULTS / f"compare-{case.key}{'' if backdrop == 'black' else '-' + backdrop}.png"
-    write_png(montage(case.title, pictures, metrics, VIEWS, columns), montage_path)
+    shares = {
+        (view, name): sum(tissue_stats[view][name][t]["share"] for t in case.shown_for)
+        for view in VIEWS
+        for name, _ in columns
+    } if case.shown_for else {}  # fmt: skip
+    write_png(montage(case.title, pictures, metrics, VIEWS, columns, shares=shares), montage_path)
 
     comparisons = {}
     for view in VIEWS:
@@ -386,21 +446,40 @@ def run_case(case: Case, presets: PresetsSource, size: int, gpu: bool, backdrop:
         "metrics": {view: {name: metrics[(view, name)] for name, _ in columns} for view in VIEWS},
         "ratios": comparisons,
         "tissues": tissue_stats,
+        "shown_for": list(case.shown_for),
+        "fog": case.fog,
+        "kind_detected": design.kind,
         "gpu_lookup_table": gpu_check,
         "montage": montage_path.relative_to(REPO).as_posix(),
         "seconds": round(time.perf_counter() - started, 1),
     }
 
 
-def tissue_statistics(values, ijk_to_ras, labels, tissues, looks: list[Look], spacing) -> dict:
-    """Per view and look: each ground-truth tissue's share of the picture and visibility (``tissue_visibility``).
+def design_tissue_labels(design: Any, values: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]]:
+    """Each voxel's tissue in our design (``tissue <id>``, the background ``background``): what the picture of a
+    volume without ground truth is made of."""
+    from IsoSimilarityTFLib import quantize
 
-    Samples are attributed with partial volume accounted for: 3 noise sigma of tolerance, the blur's 3-sigma reach.
+    bins = quantize(values, design.n_bins, design.value_range).bins
+    tissue_of_bin = design.tissue_of_class[design.labels]
+    names = tuple("background" if t.background else f"tissue {t.id}" for t in design.tissues)
+    return tissue_of_bin[bins].astype(np.uint8), names
+
+
+def tissue_statistics(
+    values, ijk_to_ras, labels, tissues, looks: list[Look], spacing, partial_volume: bool = False
+) -> dict:
+    """Per view and look: each tissue's share of the picture and visibility (``tissue_visibility``).
+
+    ``partial_volume`` (the phantom, whose tissue values and blur are known): samples are attributed with partial
+    volume accounted for, 3 noise sigma of tolerance, the blur's 3-sigma reach; otherwise to their own label.
     """
-    from isosimtf.phantom import TISSUE_HU
+    attribution = None
+    if partial_volume:
+        from isosimtf.phantom import TISSUE_HU
 
-    radius = int(np.ceil(3.0 * PHANTOM_BLUR_MM / min(spacing)))
-    attribution = partial_volume_labels(values, labels, TISSUE_HU, 3.0 * PHANTOM_NOISE_HU, radius)
+        radius = int(np.ceil(3.0 * PHANTOM_BLUR_MM / min(spacing)))
+        attribution = partial_volume_labels(values, labels, TISSUE_HU, 3.0 * PHANTOM_NOISE_HU, radius)
     result: dict[str, dict] = {}
     for view in VIEWS:
         axis, reverse = ray_axis(ijk_to_ras, view)
@@ -466,6 +545,7 @@ def markdown(document: dict) -> str:
                 f"{_fmt(r['colour_noise_ratio'])} | {'pass' if r['pass'] else '**fail**'} | "
                 f"{_fmt(first.get('brightness_ratio'))} | {_fmt(first.get('colour_noise_ratio'))} |"
             )
+    lines += visibility_summary(document["volumes"])
     for key, case in document["volumes"].items():
         lines += [
             "",
@@ -497,6 +577,74 @@ def markdown(document: dict) -> str:
     return "\n".join(lines)
 
 
+#: The issue's visibility targets (issue 16): share of the picture from what the user scanned for, at least.
+SHOWN_FOR_TARGET = {"head-ct": 0.6, "cta": 0.4}
+#: ... and from the air (fog), at most; storages of one volume agree within this.
+MAX_FOG_SHARE, STORAGE_AGREEMENT = 0.02, 0.15
+
+
+def visibility_summary(volumes: dict) -> list[str]:
+    """Markdown: per volume and view, the share of the picture from what a user scanned for (ours, the best-suited
+    preset, Slicer's first click), the fog, and the verdict against the issue's targets."""
+    lines = [
+        "",
+        "## What the pictures show (the panel)",
+        "",
+        "Share of each picture (independent orthographic ray caster, `benchmarks/tissue_visibility.py`) that comes "
+        "from what a user scanned for: voxels of at least 300 HU on the head CT (in every storage), the skull (and "
+        "arteries) of the phantoms and the CT angiogram, bone and teeth of the micro-CT; **fog** = the share from the "
+        "air. Presets on re-stored CT are mapped onto the stored values (what the Shift slider does). Targets "
+        f"(issue 16): head CT at least {SHOWN_FOR_TARGET['head-ct']:.0%} whatever the storage, storages within "
+        f"{STORAGE_AGREEMENT}; CTA at least {SHOWN_FOR_TARGET['cta']:.0%}; micro-CT fog at most {MAX_FOG_SHARE:.0%}; "
+        "MRI at least 0.8x the brightness and at most 1.3x the colour noise of MR-Default.",
+        "",
+        "| volume | kind found | view | scanned for | ours | best preset | first click | fog, ours | B ratio | "
+        "N ratio | target |",
+        "|---|---|---|---|---:|---:|---:|---:|---:|---:|---|",
+    ]
+    for key, case in volumes.items():
+        for view in VIEWS:
+            stats = case["tissues"].get(view, {})
+            best = case["best_preset"]
+            r = case["ratios"][view].get(best, {})
+
+            def share(look: str) -> float | None:
+                if not case["shown_for"] or look not in stats:
+                    return None
+                return sum(stats[look][t]["share"] for t in case["shown_for"])
+
+            fog = stats.get(OURS, {}).get(case["fog"], {}).get("share") if case["fog"] else None
+            ours = share(OURS)
+            target = next((v for k, v in SHOWN_FOR_TARGET.items() if key.startswith(k)), None)
+            if case["kind"] == "MRI":
+                verdict_text = "pass" if r.get("pass") else "**fail**"
+            elif key == "micro-ct":
+                verdict_text = "pass" if fog is not None and fog <= MAX_FOG_SHARE else "**fail**"
+            elif target is not None and ours is not None:
+                verdict_text = "pass" if ours >= target else "**fail**"
+            else:
+                verdict_text = "-"
+            lines.append(
+                f"| {key} | {case.get('kind_detected', '-')} | {view} | {', '.join(case['shown_for']) or '-'} | "
+                f"{_pct(ours)} | {_pct(share(best))} | {_pct(share(FIRST_CLICK))} | {_pct(fog)} | "
+                f"{_fmt(r.get('brightness_ratio'))} | {_fmt(r.get('colour_noise_ratio'))} | {verdict_text} |"
+            )
+    storages = {k: v for k, v in volumes.items() if k.startswith("head-ct-") and v["shown_for"]}
+    if len(storages) > 1:
+        spread = max(
+            max(sum(v["tissues"][view][OURS][t]["share"] for t in v["shown_for"]) for v in storages.values())
+            - min(sum(v["tissues"][view][OURS][t]["share"] for t in v["shown_for"]) for v in storages.values())
+            for view in VIEWS
+        )
+        verdict_text = "pass" if spread <= STORAGE_AGREEMENT else "**fail**"
+        lines += ["", f"Head CT storages ({', '.join(storages)}): largest spread of ours {spread:.3f} ({verdict_text})."]
+    return lines
+
+
+def _pct(value: float | None) -> str:
+    return "-" if value is None else f"{100 * value:.0f}%"
+
+
 def gpu_cell(check: dict) -> str:
     """``no``, ``**yes** (1048576 > 16384)`` (the table width asked and the limit), or ``n/a``."""
     if "fallback" not in check:
@@ -512,8 +660,9 @@ def tissue_table(case: dict) -> list[str]:
     names = [n for n in next(iter(next(iter(case["tissues"].values())).values()))]
     lines = [
         "",
-        "Ground-truth tissues (independent orthographic ray casting of the same opacity functions over the phantom's "
-        "labels, see `benchmarks/tissue_visibility.py`): **visibility** = mean weight the tissue gets in the pixels "
+        "Tissues (independent orthographic ray casting of the same opacity functions over the volume's labels: "
+        "ground truth where there is one, voxels by density on the head CT, our own tissues otherwise; see "
+        "`benchmarks/tissue_visibility.py`): **visibility** = mean weight the tissue gets in the pixels "
         "whose ray crosses it (1 = seen opaque wherever it projects, 0 = hidden); **share** = its part of what the "
         "picture shows (the weights add up to each pixel's opacity). Cells: visibility / share, in %.",
         "",

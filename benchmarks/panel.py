@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+#: synthetic_cta's window: stored = (HU + 1024) * 255 / 3024.
+CTA_MAP = (255.0 / 3024.0, 1024.0 * 255.0 / 3024.0)
 HEAD_CT = "/usr/share/doc/invesalius-examples/examples/Cranium.inv3"
 TEMPLATES = Path("/usr/share/mricron/templates")
 DENSE_HU = 300.0
@@ -34,8 +36,11 @@ class PanelVolume:
     """One volume of the panel.
 
     Attributes:
-        key: short name. title: for tables and montages. kind: "CT", "MRI" or "micro-CT" (which preset suits).
-        load: returns ``(values, spacing, truth)``; truth is ``(labels, names)`` or None.
+        key: short name. title: for tables and montages. kind: "CT", "MRI" or "micro-CT" (which presets suit).
+        load: returns ``(values [k, j, i], ijk_to_ras 4x4, labels or None, label names or None, storage)``, storage
+            the map ``stored = slope * HU + offset`` as ``(slope, offset)`` for CT, None otherwise.
+        shown_for: the label names a user scanned for (their share of the picture is the target), or ().
+        fog: the label name that must take no share of the picture (the air), or None.
         available: whether its data is on this machine.
         source: where the data comes from.
     """
@@ -44,6 +49,8 @@ class PanelVolume:
     title: str
     kind: str
     load: Callable[[], tuple]
+    shown_for: tuple[str, ...]
+    fog: str | None
     available: Callable[[], bool]
     source: str
 
@@ -60,16 +67,31 @@ def gaussian_blur(values: np.ndarray, sigma_vox: tuple[float, float, float]) -> 
     return np.fft.irfftn(out, s=values.shape)
 
 
-def storages(hu: np.ndarray) -> dict[str, tuple[np.ndarray, Callable[[np.ndarray], np.ndarray]]]:
-    """The same CT in four storages, each with its map back to HU."""
+def storages(hu: np.ndarray) -> dict[str, tuple[np.ndarray, tuple[float, float]]]:
+    """The same CT in four storages, each with the map ``stored = slope * HU + offset`` that made it."""
     low, high = float(hu.min()), float(hu.max())
-    scale = (high - low) / 255.0
+    scale = 255.0 / (high - low)
     return {
-        "hu": (hu, lambda v: v),
-        "uint16": ((hu.astype(np.int32) + 1024).clip(0, 65535).astype(np.uint16), lambda v: v - 1024.0),
-        "8bit": (np.round((hu - low) / scale).astype(np.uint8), lambda v: v * scale + low),
-        "float": (hu.astype(np.float32), lambda v: v),
+        "hu": (hu, (1.0, 0.0)),
+        "uint16": ((hu.astype(np.int32) + 1024).clip(0, 65535).astype(np.uint16), (1.0, 1024.0)),
+        "8bit": (np.round((hu - low) * scale).astype(np.uint8), (scale, -low * scale)),
+        "float": (hu.astype(np.float32), (1.0, 0.0)),
     }
+
+
+def partial_volume(
+    values: np.ndarray, labels: np.ndarray, means: np.ndarray, noise: float, blur_vox: float
+) -> np.ndarray:
+    """The labels a picture's samples are attributed to: a voxel the blur raised towards a denser neighbour shows that
+    neighbour (``tissue_visibility.partial_volume_labels``, 3 noise sigma of tolerance, the blur's 3-sigma reach)."""
+    from tissue_visibility import partial_volume_labels
+
+    return partial_volume_labels(values, labels, means, 3.0 * noise, int(np.ceil(3.0 * blur_vox)))
+
+
+def _grid(spacing: tuple[float, float, float]) -> np.ndarray:
+    """IJK-to-RAS of an axis-aligned volume (the phantom's frame: +x left, +y anterior, +z superior)."""
+    return np.diag([*spacing, 1.0])
 
 
 def dense_labels(hu: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]]:
@@ -77,49 +99,32 @@ def dense_labels(hu: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]]:
     return (hu >= DENSE_HU).astype(np.uint8), ("soft and air", "dense")
 
 
-def _head_ct() -> tuple[np.ndarray, tuple]:
-    from isosimtf.volume_io import read_volume
-
-    volume = read_volume(HEAD_CT)
-    return volume.values, volume.spacing
-
-
-def _phantom(size: int = 128):
-    from isosimtf.phantom import head_phantom
-
-    return head_phantom(size, seed=0)
-
-
-def _nifti(path: Path):
+def _read(path) -> tuple[np.ndarray, np.ndarray]:
     from isosimtf.volume_io import read_volume
 
     volume = read_volume(path)
-    return volume.values, volume.spacing
+    return volume.values, volume.ijk_to_ras()
 
 
-def _downsampled(path: Path, factors: tuple[int, int, int]):
+def _downsampled(path: Path, factors: tuple[int, int, int]) -> tuple:
     """A volume averaged over blocks of ``factors`` voxels (z, y, x): a coarse acquisition of the same head."""
-    values, spacing = _nifti(path)
+    values, ijk_to_ras = _read(path)
     fz, fy, fx = factors
     nz, ny, nx = (n // f * f for n, f in zip(values.shape, factors))
     blocks = values[:nz, :ny, :nx].astype(np.float64).reshape(nz // fz, fz, ny // fy, fy, nx // fx, fx)
     coarse = np.round(blocks.mean(axis=(1, 3, 5))).astype(values.dtype)
-    return coarse, (spacing[0] * fx, spacing[1] * fy, spacing[2] * fz)
+    matrix = ijk_to_ras.copy()
+    matrix[:3, :3] = ijk_to_ras[:3, :3] * np.array([fx, fy, fz])[None, :]
+    return coarse, matrix, None, None, None
 
 
-def _mni152() -> tuple:
+def _nilearn_t1() -> Path | None:
     import importlib.util
 
     spec = importlib.util.find_spec("nilearn")
-    path = Path(spec.origin).parent / "datasets" / "data" / "mni_icbm152_t1_tal_nlin_sym_09a_converted.nii.gz"
-    values, spacing = _nifti(path)
-    return values, spacing
-
-
-def _has_nilearn() -> bool:
-    import importlib.util
-
-    return importlib.util.find_spec("nilearn") is not None
+    if spec is None or spec.origin is None:
+        return None
+    return Path(spec.origin).parent / "datasets" / "data" / "mni_icbm152_t1_tal_nlin_sym_09a_converted.nii.gz"
 
 
 def synthetic_cta(size: int = 128, seed: int = 0) -> tuple[np.ndarray, tuple, tuple]:
@@ -151,7 +156,9 @@ def synthetic_cta(size: int = 128, seed: int = 0) -> tuple[np.ndarray, tuple, tu
     hu = gaussian_blur(hu_of[labels], (1.0 / step,) * 3)
     hu += np.random.default_rng(seed).normal(0.0, 15.0, hu.shape)
     stored = np.round((np.clip(hu, -1024.0, 2000.0) + 1024.0) / 3024.0 * 255.0).astype(np.uint8)
-    return stored, (step, step, step), (labels, (*TISSUES, "artery", "head holder"))
+    slope, offset = CTA_MAP
+    labels = partial_volume(stored, labels, slope * hu_of + offset, 15.0 * slope, 1.0 / step)
+    return stored, _grid((step, step, step)), labels, (*TISSUES, "artery", "head holder"), CTA_MAP
 
 
 def synthetic_micro_ct(size: int = 128, seed: int = 0) -> tuple[np.ndarray, tuple, tuple]:
@@ -177,64 +184,70 @@ def synthetic_micro_ct(size: int = 128, seed: int = 0) -> tuple[np.ndarray, tupl
         labels[((x - cx) ** 2 + (y - 0.5) ** 2) / 0.3**2 + ((z + 0.8) / 0.9) ** 2 < 1.0] = 5
     values = gaussian_blur(values_of[labels], (1.2, 1.2, 1.2))
     values += np.random.default_rng(seed).normal(0.0, 500.0, values.shape)
-    return np.clip(np.round(values), 0, 65535).astype(np.uint16), (step, step, step), (labels, names)
+    stored = np.clip(np.round(values), 0, 65535).astype(np.uint16)
+    labels = partial_volume(stored, labels, values_of, 500.0, 1.2)
+    return stored, _grid((step, step, step)), labels, names, None
 
 
-def _phantom_storage(name: str):
+def _phantom_storage(name: str, size: int = 128):
     def load():
-        from isosimtf.phantom import TISSUES
+        from isosimtf.phantom import TISSUE_HU, TISSUES, head_phantom
 
-        phantom = _phantom()
-        values, _ = storages(phantom.values)[name]
-        return values, phantom.spacing, (phantom.labels, TISSUES)
+        phantom = head_phantom(size, seed=0)
+        values, (slope, offset) = storages(phantom.values)[name]
+        means = slope * np.asarray(TISSUE_HU) + offset
+        labels = partial_volume(values, phantom.labels, means, 20.0 * slope, 1.0 / phantom.spacing[0])
+        return values, _grid(phantom.spacing), labels, TISSUES, (slope, offset)
 
     return load
 
 
 def _ct_storage(name: str):
     def load():
-        hu, spacing = _head_ct()
-        values, _ = storages(hu)[name]
-        return values, spacing, dense_labels(hu)
+        hu, ijk_to_ras = _read(HEAD_CT)
+        values, storage = storages(hu)[name]
+        labels, names = dense_labels(hu)
+        return values, ijk_to_ras, labels, names, storage
 
     return load
+
+
+def _file(path) -> Callable[[], bool]:
+    return lambda: path is not None and Path(path).is_file()
 
 
 def _always() -> bool:
     return True
 
 
-def _file(path) -> Callable[[], bool]:
-    return lambda: Path(path).is_file()
+def _file_load(path) -> Callable[[], tuple]:
+    return lambda: (*_read(path), None, None, None)
 
 
 PANEL: tuple[PanelVolume, ...] = (
     *(
-        PanelVolume(f"head-ct-{s}", f"Head CT, {s}", "CT", _ct_storage(s), _file(HEAD_CT),
-                    "Debian invesalius-examples (Cranium.inv3), re-stored")
+        PanelVolume(f"head-ct-{s}", f"Head CT, {s}", "CT", _ct_storage(s), ("dense",), None,
+                    _file(HEAD_CT), "Debian invesalius-examples (Cranium.inv3), re-stored")
         for s in ("hu", "uint16", "8bit", "float")
     ),
     *(
-        PanelVolume(f"phantom-{s}", f"Phantom 128^3, {s}", "CT", _phantom_storage(s), _always,
-                    "isosimtf phantom, seed 0, re-stored")
-        for s in ("hu", "uint16", "8bit", "float")
+        PanelVolume(f"phantom-{s}", f"Phantom 128^3, {s}", "CT", _phantom_storage(s), ("skull",),
+                    "air", _always, "isosimtf phantom, seed 0, re-stored")
+        for s in ("uint16", "8bit", "float")
     ),
-    PanelVolume("phantom-64", "Phantom 64^3 (3.75 mm)", "CT",
-                lambda: (lambda p: (p.values, p.spacing, (p.labels, p.tissues)))(_phantom(64)), _always,
-                "isosimtf phantom, seed 0, 64 voxels"),
-    PanelVolume("cta-8bit", "CT angiogram, 8-bit (synthetic)", "CT", synthetic_cta, _always,
-                "the phantom with arteries and a head holder, windowed to 8 bits"),
+    PanelVolume("phantom-64", "Phantom 64^3 (3.75 mm)", "CT", _phantom_storage("hu", 64), ("skull",),
+                "air", _always, "isosimtf phantom, seed 0, 64 voxels"),
+    PanelVolume("cta-8bit", "CT angiogram, 8-bit (synthetic)", "CT", synthetic_cta, ("skull", "artery"),
+                "air", _always, "the phantom with arteries and a head holder, windowed to 8 bits"),
     PanelVolume("micro-ct", "Micro-CT specimen in a tube, uint16 (synthetic)", "micro-CT", synthetic_micro_ct,
-                _always, "synthetic"),
-    PanelVolume("colin27-05mm", "Colin27 T1 at 0.5 mm (ch2better)", "MRI",
-                lambda: (*_nifti(TEMPLATES / "ch2better.nii.gz"), None), _file(TEMPLATES / "ch2better.nii.gz"),
-                "Debian mricron-data"),
+                ("bone", "teeth"), "air", _always, "synthetic"),
+    PanelVolume("colin27-05mm", "Colin27 T1 at 0.5 mm (ch2better)", "MRI", _file_load(TEMPLATES / "ch2better.nii.gz"),
+                (), None, _file(TEMPLATES / "ch2better.nii.gz"), "Debian mricron-data"),
     PanelVolume("colin27-coarse", "Colin27 T1 averaged to 2 x 2 x 3 mm", "MRI",
-                lambda: (*_downsampled(TEMPLATES / "ch2.nii.gz", (3, 2, 2)), None),
+                lambda: _downsampled(TEMPLATES / "ch2.nii.gz", (3, 2, 2)), (), None,
                 _file(TEMPLATES / "ch2.nii.gz"), "Debian mricron-data, block means"),
-    PanelVolume("mni152", "MNI152 T1 (nilearn)", "MRI", lambda: (*_mni152(), None), _has_nilearn,
-                "nilearn package data"),
-    PanelVolume("inia19", "INIA19 macaque T1 brain", "MRI",
-                lambda: (*_nifti(TEMPLATES / "inia19-t1-brain.nii.gz"), None),
-                _file(TEMPLATES / "inia19-t1-brain.nii.gz"), "Debian mricron-data"),
+    PanelVolume("mni152", "MNI152 T1 (nilearn)", "MRI", lambda: (*_read(_nilearn_t1()), None, None, None), (), None,
+                lambda: _file(_nilearn_t1())(), "nilearn package data"),
+    PanelVolume("inia19", "INIA19 macaque T1 brain", "MRI", _file_load(TEMPLATES / "inia19-t1-brain.nii.gz"),
+                (), None, _file(TEMPLATES / "inia19-t1-brain.nii.gz"), "Debian mricron-data"),
 )  # fmt: skip
