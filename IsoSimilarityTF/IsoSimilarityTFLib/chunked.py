@@ -159,13 +159,19 @@ class SlabTap:
     3 x ``classes._CONTACT_SAMPLE_VOXELS`` voxels of bins.
     """
 
-    def __init__(self, shape: tuple[int, int, int], n_bins: int, start: int = 0) -> None:
+    def __init__(
+        self, shape: tuple[int, int, int], n_bins: int, start: int = 0, preview_steps: tuple[int, int, int] = (0, 0, 0)
+    ) -> None:
         """
         Args:
             shape: the whole volume's shape.
             n_bins: bins counted.
             start: the first plane this tap sees (a part of the volume; the taps of the parts are then merged).
+            preview_steps: ``(sz, sy, sx)``: every ``sz``-th plane is kept, strided by ``sy, sx``, for the look's
+                preview (:func:`~.visibility.preview_steps`); 0 keeps none.
         """
+        self.preview_steps = tuple(int(s) for s in preview_steps)
+        self._preview: dict[int, np.ndarray] = {}
         self.shape = tuple(int(n) for n in shape)
         self.voxel_counts = np.zeros(n_bins, dtype=np.int64)
         self._kept = {k + d for k in contact_planes(self.shape) for d in (-1, 0, 1) if 0 <= k + d < self.shape[0]}
@@ -175,15 +181,23 @@ class SlabTap:
     def __call__(self, first: int, slab: np.ndarray) -> None:
         new = slab[self._next - first :]  # the planes of the halo were counted with the previous slab
         self.voxel_counts += count_bins(new, self.voxel_counts.size)
+        sz, sy, sx = self.preview_steps
         for k in range(self._next, first + len(slab)):
             if k in self._kept:
                 self._planes[k] = slab[k - first].copy()
+            if sz and k % sz == 0:
+                self._preview[k] = slab[k - first, ::sy, ::sx].copy()
         self._next = first + len(slab)
 
     def merge(self, other: "SlabTap") -> None:
         """Add what ``other`` gathered from planes this tap has not seen (another part of the volume)."""
         self.voxel_counts += other.voxel_counts
         self._planes.update(other._planes)
+        self._preview.update(other._preview)
+
+    def preview(self) -> np.ndarray:
+        """The kept preview planes, ``(nz', ny', nx')``, in order (after the whole pass)."""
+        return np.stack([self._preview[k] for k in sorted(self._preview)])
 
     def __getitem__(self, plane: int) -> np.ndarray:
         """A plane kept for the background contact, shape ``(n1, n2)``."""

@@ -21,7 +21,7 @@ from .options import DEFAULT_OPTIONS, check_options
 from .quantize import Quantization, quantize
 from .similarity import isovalue_similarity
 from .tissues import TissueHierarchy, tissue_hierarchy
-from .visibility import Preview, enclosure, preview_bins
+from .visibility import Preview, enclosure, preview_bins, preview_steps
 from .transfer_function import (
     TransferFunctionPoints,
     fill_volume_property,
@@ -578,7 +578,7 @@ def design_transfer_function(
             quantized = quantize(values, opts["n_bins"], opts["value_range"])
 
     # A streamed volume's voxel counts and background-contact planes are gathered during the similarity's pass.
-    tap = SlabTap(shape, quantized.n_bins) if chunked else None
+    tap = SlabTap(shape, quantized.n_bins, preview_steps=preview_steps(shape, spacing)[0]) if chunked else None
     with stage("similarity", "measuring isosurface similarity"):
         similarity = isovalue_similarity(
             quantized.bins,
@@ -635,7 +635,10 @@ def design_transfer_function(
             [c.id for c in classes if c.id != background],
             similarity.matrix,
         )
-        preview = preview_bins(quantized.bins, spacing, quantized.n_bins)
+        if tap is None:
+            preview = preview_bins(quantized.bins, spacing, quantized.n_bins)
+        else:
+            preview = Preview(tap.preview(), preview_steps(shape, spacing)[1], quantized.n_bins)
         kind = _detect_kind(hierarchy, clusters.labels, bin_voxels, preview, opts["modality"])
     design = TransferFunctionDesign(
         value_range=quantized.value_range,

@@ -255,13 +255,15 @@ class CellCounts:
 
 @dataclass(frozen=True)
 class _CountSpec:
-    """What every part of one similarity pass counts: the volume's shape (voxels), bins, levels and bins' dtype."""
+    """What every part of one similarity pass counts: the volume's shape (voxels), bins, levels and bins' dtype, and
+    whether its tap gathers voxel counts (and with which preview steps, see :class:`~.chunked.SlabTap`)."""
 
     shape: Shape3
     n_bins: int
     levels: int
     dtype: np.dtype
     tap: bool
+    preview_steps: tuple[int, int, int] = (0, 0, 0)
 
     @property
     def grid(self) -> Shape3:
@@ -312,7 +314,7 @@ def count_cells(
             builder_levels[level] = rows
         else:
             unit_rows = rows
-    tap = SlabTap(spec.shape, n_bins, first) if spec.tap else None
+    tap = SlabTap(spec.shape, n_bins, first, spec.preview_steps) if spec.tap else None
     total = int(np.prod(grid)) + builder.n_cells
     reported = 0
     first_plane = voxels = None
@@ -551,7 +553,14 @@ def interval_histograms(
         ``(n_bins, n_bins)`` int64 table.
     """
     dtype = bins.dtype if bins.dtype in (np.uint8, np.uint16) else _index_dtype(n_bins)
-    spec = _CountSpec(tuple(int(n) for n in bins.shape), int(n_bins), int(levels), np.dtype(dtype), tap is not None)
+    spec = _CountSpec(
+        tuple(int(n) for n in bins.shape),
+        int(n_bins),
+        int(levels),
+        np.dtype(dtype),
+        tap is not None,
+        tap.preview_steps if tap is not None else (0, 0, 0),
+    )
     if is_dask_array(bins):
         counts = _chunked_counts(bins, spec, progress)
     else:

@@ -60,31 +60,42 @@ class Preview:
         return counts
 
 
-def preview_bins(bins: np.ndarray, spacing: Optional[Sequence[float]], n_bins: int,
-                 max_voxels: int = PREVIEW_VOXELS) -> Preview:
-    """The preview of a quantized volume (see the module notes).
+def preview_steps(
+    shape: Sequence[int], spacing: Optional[Sequence[float]], max_voxels: int = PREVIEW_VOXELS
+) -> tuple[tuple[int, int, int], tuple[float, float, float]]:
+    """The steps ``(sz, sy, sx)`` of the preview of a volume (voxels about cubic in mm, at most ``max_voxels``
+    kept) and the preview's spacing ``(x, y, z)`` in mm.
 
     Args:
-        bins: ``(nz, ny, nx)`` integer bins in ``[0, n_bins)``, a numpy or dask array (only the kept voxels are read).
+        shape: ``(nz, ny, nx)``. spacing: ``(x, y, z)`` voxel size in mm; None for 1 mm.
+    """
+    size = np.asarray(shape, dtype=np.float64)
+    spacing_zyx = np.asarray(spacing[::-1] if spacing is not None else (1.0, 1.0, 1.0), dtype=np.float64)
+    # The preview's voxel edge in mm: the volume's extent cut into at most max_voxels cubes.
+    edge = float(np.prod(size * spacing_zyx) / max_voxels) ** (1.0 / 3.0)
+    steps = np.maximum(1, np.round(edge / spacing_zyx)).astype(int)
+    while np.prod(np.ceil(size / steps)) > max_voxels:
+        steps[np.argmin(steps * spacing_zyx)] += 1  # coarsen the finest axis first
+    kept_spacing = spacing_zyx * steps
+    return (
+        (int(steps[0]), int(steps[1]), int(steps[2])),
+        (float(kept_spacing[2]), float(kept_spacing[1]), float(kept_spacing[0])),
+    )
+
+
+def preview_bins(
+    bins: np.ndarray, spacing: Optional[Sequence[float]], n_bins: int, max_voxels: int = PREVIEW_VOXELS
+) -> Preview:
+    """The preview of a quantized volume in memory (see the module notes).
+
+    Args:
+        bins: ``(nz, ny, nx)`` integer bins in ``[0, n_bins)``.
         spacing: ``(x, y, z)`` voxel size in mm; None for 1 mm.
         n_bins: number of bins.
         max_voxels: at most this many voxels are kept.
     """
-    shape = np.asarray(np.shape(bins), dtype=np.float64)
-    spacing_zyx = np.asarray(spacing[::-1] if spacing is not None else (1.0, 1.0, 1.0), dtype=np.float64)
-    extent = shape * spacing_zyx
-    # The preview's voxel edge in mm: the volume's extent cut into at most max_voxels cubes.
-    edge = float(np.prod(extent) / max_voxels) ** (1.0 / 3.0)
-    steps = np.maximum(1, np.round(edge / spacing_zyx)).astype(int)
-    while np.prod(np.ceil(shape / steps)) > max_voxels:
-        steps[np.argmin(steps * spacing_zyx)] += 1  # coarsen the finest axis first
-    kept = np.asarray(bins[:: steps[0], :: steps[1], :: steps[2]])
-    preview_spacing = spacing_zyx * steps
-    return Preview(
-        bins=kept.astype(np.intp if n_bins > 65535 else np.uint16, copy=False),
-        spacing=(float(preview_spacing[2]), float(preview_spacing[1]), float(preview_spacing[0])),
-        n_bins=int(n_bins),
-    )
+    (sz, sy, sx), kept_spacing = preview_steps(np.shape(bins), spacing, max_voxels)
+    return Preview(bins=np.asarray(bins[::sz, ::sy, ::sx]), spacing=kept_spacing, n_bins=int(n_bins))
 
 
 def visibility_histogram(preview: Preview, opacity_per_mm: np.ndarray) -> np.ndarray:
