@@ -39,7 +39,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from .classes import PALETTE, IsovalueClass
-from .visibility import Preview, enclosure, visibility_histogram
+from .visibility import Preview, enclosure, first_met, visibility_histogram
 
 KINDS = ("ct", "mr", "8bit")
 COLOR_SCHEMES = ("ramp", "distinct")
@@ -440,10 +440,8 @@ class _VisibilityStep:
         if len(real) == 1:
             return self.make_seen(opacity, real[0])
 
-        def encloses_others(t: int) -> float:
-            return float(np.mean([enclosure(self.preview, self.tissue_of_bin, t, o) for o in real if o != t]))
-
-        return self.make_seen(opacity, max(real, key=encloses_others))
+        met_first = first_met(self.preview, self.tissue_of_bin, real)
+        return self.make_seen(opacity, real[int(np.argmax(met_first))])
 
 
 def gradient_ramp_top(tissue_values: Sequence[float], boundary_mm: float = 2.0) -> float:
