@@ -135,7 +135,7 @@ def test_an_enclosed_dense_tissue_is_seen_through_the_tissue_around_it():
     core = [visibility_histogram(preview, np.array(o))[20:].sum() for o in (start.opacities, look.opacities)]
     assert core[1] > core[0]
     shares = look.tissue_shares
-    assert shares.sum() == pytest.approx(1.0) and shares[2] > 0.6 and shares[0] == 0.0
+    assert shares.sum() == pytest.approx(1.0) and shares[0] == 0.0
     # The core keeps at least SEEN of the light it gives alone.
     opacity = np.array(look.opacities)
     alone = visibility_histogram(preview, np.where(np.arange(40) >= 20, opacity, 0.0))[20:].sum()
