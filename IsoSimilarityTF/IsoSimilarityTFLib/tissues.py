@@ -115,7 +115,13 @@ def _majority_matrix(k: int) -> np.ndarray:
 
 
 def _gauss(x: np.ndarray, mean: np.ndarray, var: float) -> np.ndarray:
-    return np.exp(-0.5 * (x - mean) ** 2 / var) / np.sqrt(2 * np.pi * var)
+    """Normal density at ``x`` (broadcast against ``mean``), computed in place: EM asks for it every iteration."""
+    z = np.subtract(x, mean)
+    z *= z
+    z *= -0.5 / var
+    np.exp(z, out=z)
+    z *= 1.0 / np.sqrt(2 * np.pi * var)
+    return z
 
 
 def fit_intensity_model(counts: np.ndarray, means: np.ndarray, min_sd: float = 0.5) -> IntensityModel:
