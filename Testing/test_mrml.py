@@ -92,7 +92,7 @@ def test_class_edit_updates_the_node_in_place_and_only_that_class(slicer_app, ph
     node = apply_design(volume, design, slicer_app.volume_rendering_logic)
     vp, opacity_function = node.GetVolumeProperty(), node.GetVolumeProperty().GetScalarOpacity()
     centres = 0.5 * (design.edges[:-1] + design.edges[1:])
-    colors_before, opacities_before = tf_at(node, centres)
+    colors_before, _ = tf_at(node, centres)
 
     target = next(c for c in design.classes if c.visible)
     design.set_class(target.id, color=(0.0, 1.0, 1.0), opacity=0.05)

@@ -608,10 +608,10 @@ def visibility_summary(volumes: dict) -> list[str]:
             best = case["best_preset"]
             r = case["ratios"][view].get(best, {})
 
-            def share(look: str) -> float | None:
-                if not case["shown_for"] or look not in stats:
+            def share(look: str, stats: dict = stats, shown_for: tuple = tuple(case["shown_for"])) -> float | None:
+                if not shown_for or look not in stats:
                     return None
-                return sum(stats[look][t]["share"] for t in case["shown_for"])
+                return sum(stats[look][t]["share"] for t in shown_for)
 
             fog = stats.get(OURS, {}).get(case["fog"], {}).get("share") if case["fog"] else None
             ours = share(OURS)
@@ -637,7 +637,8 @@ def visibility_summary(volumes: dict) -> list[str]:
             for view in VIEWS
         )
         verdict_text = "pass" if spread <= STORAGE_AGREEMENT else "**fail**"
-        lines += ["", f"Head CT storages ({', '.join(storages)}): largest spread of ours {spread:.3f} ({verdict_text})."]
+        names = ", ".join(storages)
+        lines += ["", f"Head CT storages ({names}): largest spread of ours {spread:.3f} ({verdict_text})."]
     return lines
 
 

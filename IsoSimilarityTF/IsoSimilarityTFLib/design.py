@@ -21,7 +21,6 @@ from .options import DEFAULT_OPTIONS, check_options
 from .quantize import Quantization, quantize
 from .similarity import isovalue_similarity
 from .tissues import TissueHierarchy, tissue_hierarchy
-from .visibility import Preview, enclosure, preview_bins, preview_steps
 from .transfer_function import (
     TransferFunctionPoints,
     fill_volume_property,
@@ -30,6 +29,7 @@ from .transfer_function import (
     write_vp,
     write_vp_json,
 )
+from .visibility import Preview, enclosure, preview_bins, preview_steps
 
 StageProgress = Callable[[str, float, str], None]
 
@@ -415,7 +415,8 @@ class TransferFunctionDesign:
 def _preview_to_dict(preview: Preview) -> dict:
     """The preview as JSON: shape, spacing and the bins, zlib-compressed little-endian uint16, in base64."""
     data = zlib.compress(np.ascontiguousarray(preview.bins, dtype="<u2").tobytes(), 6)
-    return {"shape": list(preview.bins.shape), "spacing": list(preview.spacing), "bins": base64.b64encode(data).decode()}
+    bins = base64.b64encode(data).decode()
+    return {"shape": list(preview.bins.shape), "spacing": list(preview.spacing), "bins": bins}
 
 
 def _preview_from_dict(data: dict, n_bins: int) -> Preview:

@@ -88,7 +88,8 @@ def detect_kind(
     ``"ct"``, ``MR``/``MRI`` -> ``"mr"``, or a word of :data:`KINDS`. Otherwise the data decides, whatever its units
     and storage: a CT has air (the background), soft tissue (the largest tissue) and a dense tail enclosed by it: the
     tissues above the largest hold at most :data:`TAIL_SHARE` of its voxels, and one of them is real, lies
-    :data:`SEPARATION` noise widths above the largest one and is met after it by most rays through both (bone inside the head; not the scalp fat of a T1, which lies around the brain).
+    :data:`SEPARATION` noise widths above the largest one and is met after it by most rays through both (bone
+    inside the head; not the scalp fat of a T1, which lies around the brain).
 
     Args:
         tissue_means: mean bin of each non-background tissue, ascending.

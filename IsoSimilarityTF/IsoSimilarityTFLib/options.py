@@ -128,8 +128,8 @@ OPTIONS: dict[str, Option] = {
                metavar="auto|all|N"),
         Option("colors", "ramp", "choice", "tissue colours: an intensity-ordered ramp (dark red, tan, ivory, white) "
                "or a distinct qualitative palette", "--colors", choices=COLOR_SCHEMES),
-        Option("modality", None, "choice", "kind of volume, which sets the opacity curve", "--modality",
-               choices=KINDS, none_means="detected from the data type and value range"),
+        Option("modality", None, "choice", "kind of volume (a hint; ct shows its dense tail)", "--modality",
+               choices=KINDS, none_means="detected from the histogram, whatever the units"),
         Option("gradient_opacity", "off", "choice", "gradient opacity: off (constant, as Slicer's presets) or auto "
                "(homogeneous insides fade, boundaries stay)", "--gradient-opacity", choices=GRADIENT_OPACITY),
     )

@@ -302,7 +302,8 @@ class TissueHierarchy:
         if sorted(boundaries) != list(range(1, len(order))):
             raise ValueError("tissue boundaries must rank every cut between neighbouring classes once")
         # Designs saved before the noise width was kept: one bin, the histogram's resolution.
-        return cls(order=order, boundaries=boundaries, auto=int(data["auto"]), noise_sd=float(data.get("noise_sd", 1.0)))
+        noise_sd = float(data.get("noise_sd", 1.0))
+        return cls(order=order, boundaries=boundaries, auto=int(data["auto"]), noise_sd=noise_sd)
 
 
 def tissue_hierarchy(
