@@ -158,9 +158,13 @@ def test_outputs_exist_and_follow_the_schema(rendered: Path) -> None:
     np.testing.assert_allclose(source["spacing"], (7.5, 6.5, 8.0), atol=1e-6)
     # Slicer's reader gives a left-handed volume a right-handed index frame (slices reversed).
     np.testing.assert_allclose(source["ijk_to_ras"], _right_handed(_small_volume(48)).ijk_to_ras(), atol=1e-5)
+    # The look's visibility step ran: each tissue's share of the picture, and the preview to run it again.
+    shares = [t["picture_share"] for t in document["tissues"]]
+    assert all(s is not None for s in shares) and sum(shares) == pytest.approx(1.0)
     # The design reloads from classes.json.
     design = TransferFunctionDesign.from_dict(document)
     assert [int(v) for v in design.labels] == document["labels"]
+    assert design.preview is not None and design.preview.bins.ndim == 3
 
     similarity = np.load(rendered / "similarity.npy")
     assert similarity.dtype == np.float64 and similarity.shape == (n_bins, n_bins)

@@ -220,3 +220,13 @@ def test_tissues_option_is_checked():
         design_transfer_function(values, gradient_opacity="yes")
     with pytest.raises(ValueError, match="tissues"):
         design_transfer_function(values, tissues=0)
+
+
+def test_the_largest_count_whose_gain_pays_is_kept():
+    """Three separate tissues: the second and the third tissue both pay (two counts pass), the fourth does not."""
+    x = np.arange(256, dtype=np.float64)
+    counts = sum(w * np.exp(-0.5 * ((x - m) / 6.0) ** 2) for m, w in ((50, 3e5), (130, 2e5), (210, 1e5)))
+    counts = np.round(counts)
+    model = choose_intensity_model(counts)
+    assert model.n_tissues == 3
+    np.testing.assert_allclose(np.sort(model.means), [50, 130, 210], atol=1.0)

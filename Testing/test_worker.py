@@ -26,6 +26,10 @@ def test_child_gives_the_same_design_as_in_process(phantom):
     expected = design_transfer_function(phantom.values, phantom.spacing, n_bins=128)
     np.testing.assert_array_equal(design.labels, expected.labels)
     assert design.to_dict()["classes"] == expected.to_dict()["classes"]
+    # The Slicer module's child gets the look's visibility step, and its preview for the Detail slider.
+    assert design.to_dict()["tissues"] == expected.to_dict()["tissues"]
+    assert all(t.picture_share is not None for t in design.tissues)
+    np.testing.assert_array_equal(design.preview.bins, expected.preview.bins)
     np.testing.assert_array_equal(design.similarity, expected.similarity)
     assert design.spacing == expected.spacing
     stages = [stage for stage, _, _ in reports]
