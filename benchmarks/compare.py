@@ -56,7 +56,7 @@ HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
-from panel import PANEL  # noqa: E402
+from volume_panel import PANEL  # noqa: E402
 from picture_metrics import picture_metrics, resize_area  # noqa: E402
 from slicer_presets import ATTRIBUTION, PresetsNotFound, PresetsSource, find_presets, read_presets  # noqa: E402
 from tissue_visibility import (  # noqa: E402
@@ -88,7 +88,7 @@ class Case:
     Attributes:
         key: short name (file names). title: shown on the montage. kind: "CT" or "MRI".
         load: returns ``(values [k, j, i], ijk_to_ras 4x4, labels or None, tissue names or None)``, and for the
-            panel (``panel.PANEL``) a fifth item: the storage map ``(slope, offset)`` from HU, or None.
+            panel (``volume_panel.PANEL``) a fifth item: the storage map ``(slope, offset)`` from HU, or None.
         shown_for: the labels a user scanned for: their share of the picture is the panel's target.
         fog: the label (air) that must take no share of the picture.
         presets: the suited presets; ``best``: the one the targets compare with.

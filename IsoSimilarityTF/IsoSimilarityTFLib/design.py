@@ -628,7 +628,7 @@ def design_transfer_function(
             bins=quantized.bins if tap is None else tap,
         )
 
-    with stage("tissues", "grouping classes into tissues"):
+    with stage("tissues", "grouping classes into tissues and choosing their look"):
         background = next((c.id for c in classes if c.background), None)
         hierarchy = tissue_hierarchy(
             clusters.labels,
@@ -641,29 +641,30 @@ def design_transfer_function(
         else:
             preview = Preview(tap.preview(), preview_steps(shape, spacing)[1], quantized.n_bins)
         kind = _detect_kind(hierarchy, clusters.labels, bin_voxels, preview, opts["modality"])
-    design = TransferFunctionDesign(
-        value_range=quantized.value_range,
-        n_bins=quantized.n_bins,
-        labels=clusters.labels,
-        classes=classes,
-        options={k: (list(v) if isinstance(v, tuple) else v) for k, v in opts.items()},
-        clustering={
-            "n_iter": clusters.n_iter,
-            "converged": clusters.converged,
-            "n_classes": clusters.n_classes,
-            "preference": clusters.preference,
-            "damping": damping,
-            **iterations,
-            "empty_isovalues": [int(b) for b in similarity.empty_isovalues],
-        },
-        bin_voxels=bin_voxels,
-        hierarchy=hierarchy,
-        kind=kind,
-        spacing=spacing,
-        similarity=similarity.matrix,
-        preview=preview,
-    )
-    design.regroup(opts["tissues"])
+        # The tissues' look (with its visibility step) is part of the stage: the Detail slider redoes both.
+        design = TransferFunctionDesign(
+            value_range=quantized.value_range,
+            n_bins=quantized.n_bins,
+            labels=clusters.labels,
+            classes=classes,
+            options={k: (list(v) if isinstance(v, tuple) else v) for k, v in opts.items()},
+            clustering={
+                "n_iter": clusters.n_iter,
+                "converged": clusters.converged,
+                "n_classes": clusters.n_classes,
+                "preference": clusters.preference,
+                "damping": damping,
+                **iterations,
+                "empty_isovalues": [int(b) for b in similarity.empty_isovalues],
+            },
+            bin_voxels=bin_voxels,
+            hierarchy=hierarchy,
+            kind=kind,
+            spacing=spacing,
+            similarity=similarity.matrix,
+            preview=preview,
+        )
+        design.regroup(opts["tissues"])
     design.timings_s = timings
     report("tissues", 1.0, f"{clusters.n_classes} classes, {design.n_tissues} tissues")
     return design
