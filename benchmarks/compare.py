@@ -56,7 +56,6 @@ HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
-from volume_panel import PANEL  # noqa: E402
 from picture_metrics import picture_metrics, resize_area  # noqa: E402
 from slicer_presets import ATTRIBUTION, PresetsNotFound, PresetsSource, find_presets, read_presets  # noqa: E402
 from tissue_visibility import (  # noqa: E402
@@ -66,6 +65,7 @@ from tissue_visibility import (  # noqa: E402
     tissue_summary,
     tissue_weights,
 )
+from volume_panel import PANEL  # noqa: E402
 
 REPO = HERE.parent
 RESULTS = HERE / "results"
