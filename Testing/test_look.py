@@ -191,7 +191,7 @@ def test_the_densest_real_tissue_is_always_shown_and_stray_voxels_follow_a_real_
     labels = np.repeat(np.arange(7), 10)[:70]
     bins = np.random.default_rng(1).integers(0, 70, (10, 10, 10))
     preview = Preview(bins, (1.0, 1.0, 1.0), 70)
-    look = default_look(classes, tissue_of, means, "ct", labels=labels, class_bins=means, max_shown=2,
+    look = default_look(classes, tissue_of, means, "ct", labels=labels, class_bins=means, max_classes=2,
                         preview=preview)  # fmt: skip
     assert look.visible[5] and not look.visible[6]  # beyond the size cut but the densest real tissue
     look = default_look(classes, tissue_of, means, "ct", labels=labels, class_bins=means, preview=preview)
@@ -331,3 +331,15 @@ def test_a_design_with_a_single_class_shows_nothing():
     assert len(design.classes) == 1 and design.classes[0].background
     assert not any(design.is_shown(c.id) for c in design.classes)
     assert design.volume_property() is not None
+
+
+def test_max_classes_counts_classes_in_whole_tissues():
+    """Tissues of 4, 3 and 2 classes (largest first) and a dense one: 7 classes take the first two whole tissues."""
+    voxels = [9000, 900, 900, 900, 900, 700, 700, 700, 400, 400, 300]
+    tissue_of = np.array([0, 1, 1, 1, 1, 2, 2, 2, 3, 3, 4])
+    classes = make_classes(voxels)
+    values = np.array([0.0, 10, 11, 12, 13, 20, 21, 22, 30, 31, 60])
+    visible = default_look(classes, tissue_of, values, "mr", max_classes=7).visible
+    assert sum(visible) == 8 and visible[1:8] == [True] * 7 and visible[-1]  # plus the densest real tissue
+    assert not any(visible[8:10])
+    assert default_look(classes, tissue_of, values, "mr", max_classes=0).visible == [False] * 10 + [True]

@@ -266,7 +266,7 @@ class TransferFunctionDesign:
             noise_sd=self.hierarchy.noise_sd,
             preview=self.preview,
             colors=self.options.get("colors", DEFAULT_OPTIONS["colors"]),
-            max_shown=self.options.get("max_classes", DEFAULT_OPTIONS["max_classes"]),
+            max_classes=self.options.get("max_classes", DEFAULT_OPTIONS["max_classes"]),
         )
         for c, color, opacity, shown in zip(self.classes, look.colors, look.opacities, look.visible):
             c.color, c.opacity, c.visible = color, opacity, shown

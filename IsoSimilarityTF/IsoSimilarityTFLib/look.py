@@ -7,7 +7,8 @@ units, so a CT in Hounsfield units, the same CT as 16-bit stored values or as an
 the same tissues, the same opacities and the same picture.
 
 1. **Which tissues are shown.** Not the background, not a tissue most of whose voxels touch it (noise in the air,
-   the partial-volume rim: fog), the ``max_shown`` largest others, and the densest real tissue always.
+   the partial-volume rim: fog); of the others, whole tissues, the largest first, while they hold at most
+   ``max_classes`` classes; and the densest real tissue always.
 2. **A monotone start**, as every Slicer preset: opacity per mm rises with intensity, from ``OPACITY_LOW`` for the
    lowest shown tissue to ``OPACITY_HIGH`` for the densest, linear in their rank.
 3. **An enclosing tissue never hides a distinct one inside it.** A *feature* is a real tissue (``REAL_SHARE``) that
@@ -202,7 +203,7 @@ def default_look(
     noise_sd: float = 1.0,
     preview: Optional[Preview] = None,
     colors: str = "ramp",
-    max_shown: int = 15,
+    max_classes: int = 15,
 ) -> Look:
     """Colour, opacity and visibility of every class (see the module notes).
 
@@ -216,7 +217,8 @@ def default_look(
         noise_sd: the intensity model's noise width, in bins.
         preview: the low-resolution volume the visibility step renders (None: the monotone start only).
         colors: ``"ramp"`` (one ramp colour per tissue) or ``"distinct"`` (one palette colour per tissue, by size).
-        max_shown: at most this many tissues are shown, the largest first (the densest real one always).
+        max_classes: tissues are shown whole, the largest first, while they hold at most this many classes (the
+            densest real tissue always, besides them).
     """
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {KINDS}; got {kind!r}")
@@ -243,14 +245,18 @@ def default_look(
     share = tissue_voxels / total
 
     # 1. Visible tissues: not fog (on the background's fringe, or no further from the background's intensity than
-    # noise explains), the largest `max_shown`, and the densest real one always.
+    # noise explains), whole tissues, largest first, up to `max_classes` classes, and the densest real one always.
     background_bin = float(class_bins[is_background][0]) if is_background.any() else -np.inf
     inner = [
         t
         for t in foreground
         if tissue_contact[t] <= FRINGE_CONTACT and tissue_bin[t] - background_bin >= SEPARATION * noise_sd
     ] or foreground
-    shown = set(sorted(inner, key=lambda t: (-tissue_voxels[t], t))[:max_shown])
+    classes_in = np.bincount(tissue_of_class, minlength=n_tissues)
+    shown: set[int] = set()
+    for t in sorted(inner, key=lambda t: (-tissue_voxels[t], t)):
+        if sum(classes_in[s] for s in shown) + classes_in[t] <= max_classes:
+            shown.add(t)
     real = [t for t in foreground if share[t] >= REAL_SHARE]
     if real:
         shown.add(max(real, key=lambda t: tissue_bin[t]))

@@ -117,7 +117,7 @@ OPTIONS: dict[str, Option] = {
                maximum=100_000, metavar="N"),
         Option("convergence_iter", 15, "int", "stable iterations that mean convergence", "--convergence-iter",
                minimum=1, maximum=10_000, metavar="N"),
-        Option("max_classes", 15, "int", "classes shown besides the background, largest first", "--max-classes",
+        Option("max_classes", 15, "int", "classes shown besides the background (whole tissues, largest first)", "--max-classes",
                minimum=0, maximum=1000, metavar="N"),
         Option("background", "largest", "choice", "which class is the hidden background", "--background",
                choices=BACKGROUND_RULES),
