@@ -65,7 +65,7 @@ from tissue_visibility import (  # noqa: E402
     tissue_summary,
     tissue_weights,
 )
-from volume_panel import PANEL  # noqa: E402
+from volume_panel import PANEL, ct_storage  # noqa: E402
 
 REPO = HERE.parent
 RESULTS = HERE / "results"
@@ -137,16 +137,18 @@ COLIN_BET = "/usr/share/mricron/templates/ch2bet.nii.gz"
 _PRESETS_OF = {"CT": (CT_PRESETS, "CT-Bone"), "micro-CT": (CT_PRESETS, "CT-Bone"), "MRI": (MR_PRESETS, "MR-Default")}
 
 CASES = (
-    Case("phantom", "Phantom (CT-like, HU, 128^3)", "CT", _phantom, CT_PRESETS, "CT-Bone", "isosimtf phantom, seed 0"),
+    Case("phantom", "Phantom (CT-like, HU, 128^3)", "CT", _phantom, CT_PRESETS, "CT-Bone", "isosimtf phantom, seed 0",
+         shown_for=("skull",), fog="air"),
     Case(
         "head-ct",
         "Head CT (InVesalius Cranium, HU)",
         "CT",
-        _file(HEAD_CT),
+        ct_storage("hu"),
         CT_PRESETS,
         "CT-Bone",
         f"Debian invesalius-examples, {HEAD_CT}",
         lambda: Path(HEAD_CT).is_file(),
+        ("dense",),
     ),
     Case(
         "colin27",
@@ -629,7 +631,7 @@ def visibility_summary(volumes: dict) -> list[str]:
                 f"{_pct(ours)} | {_pct(share(best))} | {_pct(share(FIRST_CLICK))} | {_pct(fog)} | "
                 f"{_fmt(r.get('brightness_ratio'))} | {_fmt(r.get('colour_noise_ratio'))} | {verdict_text} |"
             )
-    storages = {k: v for k, v in volumes.items() if k.startswith("head-ct-") and v["shown_for"]}
+    storages = {k: v for k, v in volumes.items() if k.startswith("head-ct") and v["shown_for"]}
     if len(storages) > 1:
         spread = max(
             max(sum(v["tissues"][view][OURS][t]["share"] for t in v["shown_for"]) for v in storages.values())

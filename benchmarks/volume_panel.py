@@ -202,7 +202,7 @@ def _phantom_storage(name: str, size: int = 128):
     return load
 
 
-def _ct_storage(name: str):
+def ct_storage(name: str):
     def load():
         hu, ijk_to_ras = _read(HEAD_CT)
         values, storage = storages(hu)[name]
@@ -226,9 +226,9 @@ def _file_load(path) -> Callable[[], tuple]:
 
 PANEL: tuple[PanelVolume, ...] = (
     *(
-        PanelVolume(f"head-ct-{s}", f"Head CT, {s}", "CT", _ct_storage(s), ("dense",), None,
+        PanelVolume(f"head-ct-{s}", f"Head CT, {s}", "CT", ct_storage(s), ("dense",), None,
                     _file(HEAD_CT), "Debian invesalius-examples (Cranium.inv3), re-stored")
-        for s in ("hu", "uint16", "8bit", "float")
+        for s in ("uint16", "8bit", "float")  # in HU it is compare.py's head-ct
     ),
     *(
         PanelVolume(f"phantom-{s}", f"Phantom 128^3, {s}", "CT", _phantom_storage(s), ("skull",),

@@ -377,8 +377,9 @@ class _VisibilityStep:
             end = int(np.flatnonzero(self.tissue_of_bin == feature)[0])
             inside = np.arange(start, end)
             inside = inside[self.shown[self.tissue_of_bin[inside]]]
-            place = (inside - start + 1) / (end - start + 1)
-            ramp = opacity[lower] + (opacity[feature] - opacity[lower]) * place
+            # A voxel of value v holds a share (v - lower mean) / (feature mean - lower mean) of the feature.
+            share = (inside - self.tissue_bin[lower]) / (self.tissue_bin[feature] - self.tissue_bin[lower])
+            ramp = opacity[lower] + (opacity[feature] - opacity[lower]) * share
             per_bin[inside] = np.maximum(per_bin[inside], ramp)
         return ramped_opacity(per_bin, max(self.noise_sd, 1.0))
 
@@ -407,9 +408,11 @@ class _VisibilityStep:
 
     def show_features(self, opacity: np.ndarray, features: list[int]) -> np.ndarray:
         """CT-like data: every feature (a tissue of the dense tail) is a surface where it lies, its partial volume
-        is ramped in from where the tissue below it ends (``SEPARATION`` noise widths above that tissue's mean: a
-        thin bone blurred below the feature's range is still drawn), and the tissues below it that stand apart from
-        it keep at least ``SEEN`` of its light (the enclosing soft tissue is cleared)."""
+        is ramped in (from where the tissue below it ends, ``SEPARATION`` noise widths above that tissue's mean, the
+        opacity of a voxel follows the share of the feature it holds, linear between the two tissues' means: a thin
+        bone blurred below the feature's range is still drawn, a soft-tissue voxel raised by noise is not), and the
+        tissues below it that stand apart from it keep at least ``SEEN`` of its light (the enclosing soft tissue is
+        cleared)."""
         shown = np.flatnonzero(self.shown)
         apart = {}
         for f in features:
