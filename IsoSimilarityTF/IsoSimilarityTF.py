@@ -29,6 +29,7 @@ from slicer.ScriptedLoadableModule import (
 from slicer.util import VTKObservationMixin
 
 from IsoSimilarityTFLib.options import OPTIONS
+from IsoSimilarityTFLib.panel import PanelModel, PanelView, gui_tag
 from IsoSimilarityTFLib.session import AUTO_DETAIL, CLASS, TISSUE, Cancelled, DesignSession
 
 #
@@ -79,8 +80,12 @@ def _withinRange(option: str, minimum: Optional[float] = None) -> WithinRange:
     return WithinRange(entry.minimum if minimum is None else minimum, entry.maximum)
 
 
-def _choice(option: str, *extra: str) -> Choice:
-    return Choice([*OPTIONS[option].choices, *extra])
+def _choice(option: str, *extra: str, default: Optional[str] = None) -> Choice:
+    """The option's words and the extra ones, the parameter's default first (by default the option's): a combo box
+    being rebuilt selects its first item, and on Slicer 5.8 a connector left connected wrote it (Slicer#7545)."""
+    first = OPTIONS[option].default if default is None else default
+    words = [*OPTIONS[option].choices, *extra]
+    return Choice([first, *(word for word in words if word != first)])
 
 
 def _default(option: str):
@@ -127,7 +132,7 @@ class IsoSimilarityTFParameterNode:
     unconverged: Annotated[str, _choice("unconverged")] = _default("unconverged")
     tissues: Annotated[int, _withinRange("tissues", minimum=AUTO_DETAIL)] = AUTO_DETAIL  # AUTO_DETAIL: "auto"
     colors: Annotated[str, _choice("colors")] = _default("colors")
-    modality: Annotated[str, _choice("modality", "auto")] = "auto"  # "auto": detected (None in the engine)
+    modality: Annotated[str, _choice("modality", "auto", default="auto")] = "auto"  # "auto": detected (engine: None)
     gradientOpacity: Annotated[str, _choice("gradient_opacity")] = _default("gradient_opacity")
 
 
@@ -201,8 +206,9 @@ def choiceLabels() -> dict:
     }
 
 
-class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
-    """The module panel."""
+class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, PanelView):
+    """The module panel: Qt widgets bound to the parameter node and to the panel's state (``self.panel``, a
+    ``IsoSimilarityTFLib.panel.PanelModel``, which follows the scene and asks this widget, its view, to draw)."""
 
     def __init__(self, parent=None) -> None:
         ScriptedLoadableModuleWidget.__init__(self, parent)
@@ -220,12 +226,9 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self._inProcess = False
         self._cancelRequested = False
         self._pollTimer = None
-        # The volume whose design the classes table shows (the table is rebuilt when the input changes).
-        self._shownVolume = None
+        self.panel = None
         # The tree's editing widgets by (level, id) of their row.
         self._rowWidgets = {}
-        # The Detail (parameter node "tissues") the shown design was last grouped with.
-        self._detailShown = None
 
     @property
     def _running(self) -> bool:
@@ -241,6 +244,8 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         uiWidget.setMRMLScene(slicer.mrmlScene)
 
         self.logic = IsoSimilarityTFLogic()
+        self.panel = PanelModel(self.logic, self)
+        self.panel.observe_scene(slicer.mrmlScene)
 
         self._pollTimer = qt.QTimer()
         self._pollTimer.setInterval(POLL_INTERVAL_MS)
@@ -265,13 +270,14 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         header = self.ui.tissuesTreeWidget.header()
         header.setSectionResizeMode(qt.QHeaderView.ResizeToContents)
         header.setStretchLastSection(True)
-        self._showDesign(None)
+        self.show_design(None)
 
         self.initializeParameterNode()
 
     def cleanup(self) -> None:
         self._stopJob()
         self.removeObservers()
+        self.panel.stop()
 
     def enter(self) -> None:
         self.initializeParameterNode()
@@ -294,10 +300,7 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         if self._running:
             self._stopJob()
             self._setRunning(False)
-        self.setParameterNode(None)
-        self.logic.forget()
-        self._shownVolume = None
-        self._showDesign(None)
+        self.setParameterNode(None)  # the panel's state forgets the design (it observes the scene too)
 
     def onSceneEndClose(self, caller, event) -> None:
         self._followActiveVolume = True
@@ -311,14 +314,14 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         activeVolume = self._activeVolume()
         if activeVolume and (self._followActiveVolume or not self._parameterNode.inputVolume):
             self._parameterNode.inputVolume = activeVolume
-        self._onParameterNodeModified()
+        self.panel.refresh()
 
     def setParameterNode(self, inputParameterNode: Optional[IsoSimilarityTFParameterNode]) -> None:
         """Connect the panel to a parameter node, once per MRML node.
 
         Re-entering the module gives a new wrapper of the same MRML node: it is not reconnected. On Slicer 5.8
-        ``connectGui`` returns no tag, so ``disconnectGui`` cannot undo it, and each new connection rebuilds the
-        choice combo boxes, which writes their first and last choices into the parameter node (Slicer#7545).
+        ``connectGui`` returns no tag (``gui_tag`` finds it), else ``disconnectGui`` could not undo the connection and
+        each new one, after a scene close, would make the old connectors write their first choice (Slicer#7545).
         """
         if (
             inputParameterNode is not None
@@ -330,14 +333,13 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             if self._parameterNodeGuiTag is not None:
                 self._parameterNode.disconnectGui(self._parameterNodeGuiTag)
             self._parameterNodeGuiTag = None
-            self.removeObserver(self._parameterNode, vtk.vtkCommand.ModifiedEvent, self._onParameterNodeModified)
         self._parameterNode = inputParameterNode
+        self.panel.set_parameters(inputParameterNode)
         if self._parameterNode:
             # Widgets with a "SlicerParameterName" dynamic property in the .ui are bound to the parameter of that name.
-            self._parameterNodeGuiTag = self._parameterNode.connectGui(self.ui)
+            self._parameterNodeGuiTag = gui_tag(self._parameterNode, self._parameterNode.connectGui(self.ui))
             self._labelChoiceComboBoxes()
-            self.addObserver(self._parameterNode, vtk.vtkCommand.ModifiedEvent, self._onParameterNodeModified)
-            self._onParameterNodeModified()
+            self.panel.refresh()
 
     def _labelChoiceComboBoxes(self) -> None:
         """Show readable labels instead of the parameter values the connector put in the combo boxes."""
@@ -359,10 +361,9 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
                     comboBox.setItemText(index, labels[value])
                     comboBox.setItemData(index, value, qt.Qt.ToolTipRole)
 
-    def _onParameterNodeModified(self, caller=None, event=None) -> None:
+    def show_parameters(self) -> None:
+        """The parameter node changed: enable what depends on it."""
         volume = self._parameterNode.inputVolume if self._parameterNode else None
-        if self._running:
-            return
         self.ui.applyButton.enabled = volume is not None
         self.ui.applyButton.toolTip = (
             _("Design a transfer function for the input volume and show it in the 3D view")
@@ -372,17 +373,12 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self.ui.preferenceValueSpinBox.enabled = bool(
             self._parameterNode and self._parameterNode.preference == "number"
         )
-        if volume is not self._shownVolume:
-            self._shownVolume = volume
-            design = self.logic.restore(volume)
-            self._showDesign(design)
-            if design is not None and self.logic.outside_change() is not None:
-                self.ui.statusLabel.text = _(
-                    "The 3D view shows another transfer function than this design (changed in the Volume Rendering "
-                    "module). Editing a class shows the design again, after asking."
-                )
-        if self._parameterNode is not None:
-            self._onDetailChanged()
+
+    def show_outside_change(self, change: str) -> None:
+        self.ui.statusLabel.text = _(
+            "The 3D view shows another transfer function than this design (changed in the Volume Rendering "
+            "module). Editing a class shows the design again, after asking."
+        )
 
     # Active volume ---------------------------------------------------------------------------------------------------
     def _observeSelectionNode(self) -> None:
@@ -469,8 +465,7 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self.ui.progressBar.setFormat(f"{message} (%p%)")
 
     def _showResult(self, volume, design) -> None:
-        self._shownVolume = volume
-        self._showDesign(design)
+        self.panel.show_result(volume, design)
         self.addLog(self.logic.summaryText(design))
         logging.info(f"IsoSimilarityTF timings for {volume.GetName()}: {self.logic.timingsText(design)}")
 
@@ -516,6 +511,7 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self._job = self._jobVolume = None
 
     def _setRunning(self, running: bool) -> None:
+        self.panel.running = running
         self.ui.progressBar.value = 0
         self.ui.progressBar.setFormat("%p%")
         self.ui.progressBar.visible = running
@@ -529,7 +525,7 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         ):
             widget.enabled = not running
         if not running:
-            self._onParameterNodeModified()
+            self.panel.refresh()
 
     def addLog(self, text: str) -> None:
         """Show a message under the Apply button."""
@@ -537,10 +533,10 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         slicer.app.processEvents()
 
     # Tissue tree ---------------------------------------------------------------------------------------------------
-    def _showDesign(self, design) -> None:
+    def show_design(self, design) -> None:
         """Show a design (or nothing) in the tissue tree, the Detail slider, the similarity picture and the timings."""
-        self._showDetail(design)
-        self._fillTree(design)
+        self._showDetailRange(design)
+        self.show_tree(design)
         self._showSimilarityPicture(design)
         self.ui.timingsLabel.text = self.logic.timingsText(design) if design is not None else ""
         for button in (
@@ -552,27 +548,25 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         ):
             button.enabled = design is not None
 
-    def _showDetail(self, design) -> None:
-        """Set the Detail slider's range to the design's (automatic, 1 tissue ... one per class) and its value to the
-        design's grouping, which the parameter node then holds (so the slider regroups only when the user moves it)."""
+    def _showDetailRange(self, design) -> None:
+        """The Detail slider's range: the design's (automatic, 1 tissue ... one per class), set before the panel's
+        state writes the design's grouping into the parameter node, so the slider never clamps it."""
         slider = self.ui.detailSlider
         slider.enabled = design is not None
         slider.blockSignals(True)
         if design is None:
-            # Any saved value fits: the slider must not clamp the parameter while no design is shown.
+            # Any saved value fits: the slider must not clamp the parameter while no design is shown. No ticks: over
+            # this range (pageStep 1) they would draw as a solid bar.
             slider.setRange(AUTO_DETAIL, int(OPTIONS["tissues"].maximum))
+            slider.setTickPosition(qt.QSlider.NoTicks)
         else:
             slider.setRange(AUTO_DETAIL, self.logic.detail_range()[1])
+            slider.setTickPosition(qt.QSlider.TicksBelow)
         slider.blockSignals(False)
-        if design is not None and self._parameterNode is not None:
-            self._detailShown = self.logic.detail()
-            self._parameterNode.tissues = self._detailShown
-        self._updateDetailLabel()
+        self.show_detail_label()
 
-    def _updateDetailLabel(self) -> None:
-        design = self.logic.design if self._shownVolume is not None else None
-        detail = self._parameterNode.tissues if self._parameterNode else AUTO_DETAIL
-        self.ui.detailValueLabel.text = self.detailText(detail, design)
+    def show_detail_label(self) -> None:
+        self.ui.detailValueLabel.text = self.detailText(self.panel.detail(), self.panel.detail_design())
 
     @staticmethod
     def detailText(detail: int, design) -> str:
@@ -588,25 +582,7 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             return _("One per class: {count} (thesis)").format(count=count)
         return _("1 tissue") if count == 1 else _("{count} tissues").format(count=count)
 
-    def _onDetailChanged(self) -> None:
-        """The parameter node's Detail changed (the slider, a script): regroup the shown design at once."""
-        design = self.logic.design
-        detail = self._parameterNode.tissues
-        if design is None or self._shownVolume is None or detail == self._detailShown:
-            self._updateDetailLabel()
-            return
-        self._detailShown = detail
-        if self._confirmOverwrite():
-            with slicer.util.tryWithErrorDisplay(_("Failed to regroup the classes.")):
-                self.logic.regroup(detail)
-        # The design's own setting: a count past its classes becomes its class count; if the user kept the other
-        # transfer function, the slider goes back to the design's grouping.
-        self._detailShown = self.logic.detail()
-        self._parameterNode.tissues = self._detailShown
-        self._fillTree(design)
-        self._updateDetailLabel()
-
-    def _fillTree(self, design) -> None:
+    def show_tree(self, design) -> None:
         tree = self.ui.tissuesTreeWidget
         tree.clear()  # deletes the items and their widgets
         self._rowWidgets = {}
@@ -620,7 +596,7 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self.ui.tissuesCollapsibleButton.text = _("Tissues ({tissues} tissues, {classes} classes)").format(
             tissues=design.n_tissues, classes=len(design.classes)
         )
-        self._syncRows()
+        self.show_rows()
 
     def rowName(self, row) -> str:
         """The name shown in the tree (numbers from 1, as in the segment names)."""
@@ -696,7 +672,7 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         }
         return item
 
-    def _syncRows(self) -> None:
+    def show_rows(self) -> None:
         """Set the tree's widgets from the logic's design, without sending edits back."""
         design = self.logic.design
         if design is None:
@@ -727,11 +703,8 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             for column in (COLUMN_NAME, COLUMN_VOXELS, COLUMN_RANGE):
                 widgets["item"].setForeground(column, qt.QBrush() if row.shown else brush)
 
-    def _confirmOverwrite(self) -> bool:
-        """Before an edit: if the shown transfer function is no longer the design's, ask before replacing it."""
-        change = self.logic.outside_change()
-        if change is None:
-            return True
+    def confirm_overwrite(self, change: str) -> bool:
+        """Before an edit: the shown transfer function is no longer the design's; ask before replacing it."""
         from IsoSimilarityTFLib import mrml
 
         volumeName = self.logic.volume_node.GetName() if self.logic.volume_node else ""
@@ -749,12 +722,17 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             windowTitle=_("Transfer function changed"),
         )
 
+    def attempt(self, what: str, action) -> None:
+        if what == "regroup":
+            message = _("Failed to regroup the classes.")
+        else:
+            message = _("Failed to update the transfer function.")
+        with slicer.util.tryWithErrorDisplay(message):
+            action()
+
     def _edit(self, edit) -> None:
         """Apply one edit through the logic (which rewrites the transfer function in place) and refresh the panel."""
-        if self._confirmOverwrite():
-            with slicer.util.tryWithErrorDisplay(_("Failed to update the transfer function.")):
-                edit()
-        self._syncRows()
+        self.panel.edit(edit)
 
     def onRowColorChanged(self, level: str, itemId: int, color) -> None:
         self._edit(lambda: self.logic.edit(level, itemId, color=(color.redF(), color.greenF(), color.blueF())))

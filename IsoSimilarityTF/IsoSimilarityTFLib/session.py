@@ -342,6 +342,12 @@ class DesignSession:
             raise RuntimeError("The volume of this design is no longer in the scene.")
         self.property_node = mrml.update_design(self.volume_node, self.current_design(), self.volume_rendering_logic())
 
+    def restyle(self) -> None:
+        """Give the design's property node the design's shading and gradient opacity again (see
+        :func:`.mrml.restyle_property_node`); the next edit writes its colours and opacities."""
+        if self.property_node is not None:
+            mrml.restyle_property_node(self.property_node, self.current_design())
+
     def set_class_color(self, class_id: int, color) -> None:
         self.current_design().set_class(class_id, color=color)
         self.update()

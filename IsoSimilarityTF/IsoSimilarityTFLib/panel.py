@@ -1,0 +1,213 @@
+"""The module panel's state without Qt: the volume it shows, that volume's design, the Detail shown, whether the 3D
+view was changed outside the module, and how these follow the scene (imports, closes) and the user (Apply, edits).
+
+The widget (``IsoSimilarityTF.py``) gives a :class:`PanelView` that draws with Qt and its parameter node wrapper; the
+model observes the scene and the parameter node itself with plain VTK observers, so the tests drive it on a real
+``slicer-core`` scene with the events in Slicer's own order (``Testing/test_panel.py``).
+"""
+
+from typing import Callable, Optional
+
+from . import mrml
+from .session import AUTO_DETAIL, DesignSession
+
+# vtkCommand::ModifiedEvent (the parameter node's), without importing VTK here.
+_MODIFIED_EVENT = "ModifiedEvent"
+
+
+def gui_tag(wrapper, tag):
+    """The tag ``connectGui`` returned; on Slicer 5.8, whose ``connectGui`` returns None (``wrapper.py:241-253`` at
+    v5.8.1; fixed in 5.10.0), the newest key of the wrapper's connector table (``:204-206``), so that
+    ``disconnectGui`` undoes the connection there too. Otherwise the old connectors stay connected, and the next
+    connection's rebuilt combo boxes make them write their first choice into the parameter node."""
+    if tag is None:
+        connected = getattr(wrapper, "_parameterGUIs", None)
+        if connected:
+            return max(connected)
+    return tag
+
+
+class PanelView:
+    """What the model asks the panel to draw or ask; the widget overrides these with Qt (here they do nothing)."""
+
+    def show_parameters(self) -> None:
+        """The parameter node changed: enable what depends on it (Apply needs a volume, ...)."""
+
+    def show_design(self, design) -> None:
+        """Show a design, or none: the tree, the Detail slider's range, the similarity picture, the buttons."""
+
+    def show_tree(self, design) -> None:
+        """Rebuild the tree only (the grouping changed)."""
+
+    def show_rows(self) -> None:
+        """Set the tree's editors from the design (an edit was made or refused)."""
+
+    def show_detail_label(self) -> None:
+        """The text beside the Detail slider."""
+
+    def show_outside_change(self, change: str) -> None:
+        """Say that the 3D view shows another transfer function than the design (see :func:`.mrml.outside_change`)."""
+
+    def confirm_overwrite(self, change: str) -> bool:
+        """Ask before an edit replaces a transfer function changed outside the module."""
+        return True
+
+    def attempt(self, what: str, action: Callable[[], None]) -> None:
+        """Run an action of the user's, showing its error (``what``: "regroup" or "edit")."""
+        action()
+
+
+class PanelModel:
+    """The panel's state; one per widget.
+
+    Args:
+        session: the module's logic (a :class:`~.session.DesignSession`).
+        view: the panel's drawing (:class:`PanelView`).
+    """
+
+    def __init__(self, session: DesignSession, view: PanelView) -> None:
+        self.session = session
+        self.view = view
+        #: The parameter node wrapper (attributes ``inputVolume`` and ``tissues``), None when disconnected.
+        self.parameters = None
+        #: The volume whose design the panel shows (None: none).
+        self.shown_volume = None
+        #: The Detail the shown design is grouped with (None: no design shown; the Detail is then left alone).
+        self.detail_shown: Optional[int] = None
+        #: An Apply is under way (the panel then ignores the parameter node).
+        self.running = False
+        self._scene = None
+        self._observations = []
+        self._parameter_observation = None
+
+    # Connections ---------------------------------------------------------------------------------------------------
+    def observe_scene(self, scene) -> None:
+        """Follow the scene's closes and imports (once; :meth:`stop` undoes it)."""
+        self._scene = scene
+        self._observe(scene, scene.StartCloseEvent, self.on_scene_start_close)
+        self._observe(scene, scene.EndImportEvent, self.on_scene_end_import)
+
+    def set_parameters(self, parameters, node=None) -> None:
+        """Follow a parameter node (``node``: the object whose ModifiedEvent to observe, by default the wrapper's
+        ``parameterNode``), or none."""
+        if self._parameter_observation is not None:
+            self._parameter_observation[0].RemoveObserver(self._parameter_observation[1])
+            self._parameter_observation = None
+        self.parameters = parameters
+        if parameters is not None:
+            observed = parameters.parameterNode if node is None else node
+            self._parameter_observation = (observed, observed.AddObserver(_MODIFIED_EVENT, self._on_modified))
+
+    def stop(self) -> None:
+        """Remove every observer (the widget is cleaned up)."""
+        self.set_parameters(None)
+        for observed, tag in self._observations:
+            observed.RemoveObserver(tag)
+        self._observations = []
+
+    def _on_modified(self, caller, event) -> None:
+        self.refresh()
+
+    def _observe(self, observed, event, method) -> None:
+        self._observations.append((observed, observed.AddObserver(event, lambda caller, event: method())))
+
+    # Following the scene -----------------------------------------------------------------------------------------
+    def refresh(self) -> None:
+        """The parameter node changed (the user, a script, or a scene import or close): show the selected volume's
+        design if it is another volume, and regroup the shown design if the Detail changed."""
+        if self.running or self.parameters is None:
+            return
+        self.view.show_parameters()
+        # During an import the design's text node may not be added yet, or added with its .txt file not yet read
+        # (vtkMRMLScene::Import reads storable nodes only after adding every node): wait for EndImport.
+        if self._scene is not None and self._scene.IsImporting():
+            return
+        volume = self.parameters.inputVolume
+        if volume is not self.shown_volume:
+            self.show_volume(volume)
+        self.detail_changed()
+
+    def show_volume(self, volume) -> None:
+        """Show the design stored for the volume (an earlier run, a saved scene), or none."""
+        self._show(volume, self.session.restore(volume))
+        change = self.session.outside_change()
+        if change is not None:
+            self.view.show_outside_change(change)
+
+    def on_scene_end_import(self) -> None:
+        """A scene was added or loaded: its nodes and files are all read now, so look at the volume again."""
+        if self.parameters is not None and not self.running:
+            self.show_volume(self.parameters.inputVolume)
+            self.view.show_detail_label()
+
+    def on_scene_start_close(self) -> None:
+        self.session.forget()
+        self.shown_volume = None
+        self.detail_shown = None
+        self.view.show_design(None)
+
+    # The Detail --------------------------------------------------------------------------------------------------
+    def detail_changed(self) -> None:
+        """Regroup the shown design when the parameter node's Detail is not the one it is grouped with."""
+        detail = self.parameters.tissues
+        if self.session.design is None or self.detail_shown is None or detail == self.detail_shown:
+            self.view.show_detail_label()
+            return
+        self.detail_shown = detail
+        if self._confirm():
+            self.view.attempt("regroup", lambda: self.session.regroup(detail))
+        # The design's own setting: a count past its classes becomes its class count; if the user kept the other
+        # transfer function, the Detail goes back to the design's grouping.
+        self.detail_shown = self.session.detail()
+        self.parameters.tissues = self.detail_shown
+        self.view.show_tree(self.session.design)
+        self.view.show_detail_label()
+
+    def detail_design(self):
+        """The design the Detail label describes (None when the panel shows none)."""
+        return self.session.design if self.detail_shown is not None else None
+
+    def detail(self) -> int:
+        return self.parameters.tissues if self.parameters is not None else AUTO_DETAIL
+
+    # Apply -------------------------------------------------------------------------------------------------------
+    def start(self) -> None:
+        self.running = True
+
+    def stop_running(self) -> None:
+        """The Apply ended (done, failed or cancelled): follow the parameter node again."""
+        self.running = False
+        self.refresh()
+
+    def show_result(self, volume, design) -> None:
+        """A design was computed for the volume and is shown in the 3D view: show it in the panel."""
+        self._show(volume, design)
+
+    def _show(self, volume, design) -> None:
+        self.shown_volume = volume
+        self.detail_shown = self.session.detail()
+        # The slider's range first: it must not clamp the grouping written next.
+        self.view.show_design(design)
+        if design is not None and self.parameters is not None:
+            self.parameters.tissues = self.detail_shown
+        self.view.show_detail_label()
+
+    # Edits -------------------------------------------------------------------------------------------------------
+    def _confirm(self) -> bool:
+        """Whether an edit may write the design into the 3D view; when the user agrees to replace a transfer function
+        changed outside (a preset copied in, Shift, Synchronize), the design's shading and gradient opacity come back
+        too (a preset's ``CopyContent`` replaced them)."""
+        change = self.session.outside_change()
+        if change is None:
+            return True
+        if not self.view.confirm_overwrite(change):
+            return False
+        if change == mrml.CHANGE_EDITED:
+            self.session.restyle()
+        return True
+
+    def edit(self, action: Callable[[], None]) -> None:
+        """One edit of the shown design (a session method that rewrites the transfer function), after asking."""
+        if self.session.design is not None and self._confirm():
+            self.view.attempt("edit", action)
+        self.view.show_rows()
