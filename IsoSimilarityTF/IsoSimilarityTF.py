@@ -430,11 +430,17 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
         if self.logic.runs_in_process(volume, options):
             self._runInProcess(volume, options)
             return
-        with slicer.util.tryWithErrorDisplay(_("Failed to compute the transfer function."), waitCursor=True):
-            self._job = self.logic.start(volume, options)
-            self._jobVolume = volume
-            self._setRunning(True)
-            self._pollTimer.start()
+        # The progress bar shows while the volume is written for the design process (a large one takes a while).
+        self._setRunning(True)
+        slicer.app.processEvents()
+        try:
+            with slicer.util.tryWithErrorDisplay(_("Failed to compute the transfer function."), waitCursor=True):
+                self._job = self.logic.start(volume, options)
+                self._jobVolume = volume
+                self._pollTimer.start()
+        finally:
+            if self._job is None:  # it failed (and said so)
+                self._setRunning(False)
 
     def _runInProcess(self, volume, options: dict) -> None:
         self._inProcess = True
@@ -874,6 +880,10 @@ class IsoSimilarityTFLogic(ScriptedLoadableModuleLogic, DesignSession):
         if not executable:
             raise RuntimeError(_("The PythonSlicer executable was not found: cannot start the computation."))
         return executable
+
+    def temporary_folder(self) -> str:
+        """The temporary folder chosen in Slicer's settings, for the volume the design process reads."""
+        return slicer.app.temporaryPath
 
     @staticmethod
     def defaultExportExtension() -> str:
