@@ -349,3 +349,23 @@ def test_f2_every_choice_parameter_defaults_to_its_first_choice(module):
     for name, words in choices.items():
         assert words[0] == getattr(module.IsoSimilarityTFParameterNode, name), name
         assert len(set(words)) == len(words), name
+
+
+def test_f7_the_detail_slider_has_no_ticks_while_no_design_is_shown(panel, module):
+    widget, _ = panel
+    widget.show_design(None)
+    widget.ui.detailSlider.setTickPosition.assert_called_with(module.qt.QSlider.NoTicks)
+    widget.panel.refresh()  # the design is shown
+    widget.ui.detailSlider.setTickPosition.assert_called_with(module.qt.QSlider.TicksBelow)
+
+
+def test_the_visibility_boxes_are_disabled_in_solo_mode(panel, module):
+    widget, _ = panel
+    module.qt.QCheckBox.side_effect = lambda *args: mock.MagicMock(name="QCheckBox")  # one per row and column
+    widget.panel.refresh()
+    boxes = [w["visible"] for w in widget._rowWidgets.values()]
+    assert len({id(box) for box in boxes}) == len(boxes) == 4 and all(box.enabled for box in boxes)
+    widget.onRowSoloToggled(TISSUE, 2, True)
+    assert not any(box.enabled for box in boxes)
+    widget.onShowAllButton()
+    assert all(box.enabled for box in boxes)

@@ -280,6 +280,20 @@ def test_an_edit_refused_after_a_preset_changes_nothing(slicer_app, panel_of):
     assert mrml.design_of_volume(volume).to_dict() == before and model.parameters.tissues == 3
 
 
+def test_a_colour_only_change_in_volume_rendering_is_asked_about_before_an_edit(slicer_app, panel_of):
+    from test_mrml import shift_color_of_point
+
+    view = RecordingView(answer=False)
+    model = panel_of(view)
+    volume = add_volume(slicer_app, "Nested")
+    model.parameters.inputVolume = volume
+    property_node = model.session.apply(volume, hand_made_design())
+    model.show_result(volume, model.session.design)
+    shift_color_of_point(property_node, 2)
+    model.edit(lambda: model.session.edit(TISSUE, 3, opacity=0.5))
+    assert view.asked == [mrml.CHANGE_EDITED] and mrml.modified_outside(volume)
+
+
 # F2 -----------------------------------------------------------------------------------------------------------------
 class _Wrapper:
     def __init__(self, connected):
