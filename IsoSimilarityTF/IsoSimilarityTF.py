@@ -29,7 +29,7 @@ from slicer.ScriptedLoadableModule import (
 from slicer.util import VTKObservationMixin
 
 from IsoSimilarityTFLib.options import OPTIONS
-from IsoSimilarityTFLib.panel import PanelModel, PanelView, gui_tag
+from IsoSimilarityTFLib.panel import PanelModel, PanelView, engine_options, gui_tag
 from IsoSimilarityTFLib.session import AUTO_DETAIL, CLASS, TISSUE, Cancelled, DesignSession
 
 #
@@ -419,7 +419,11 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
         if self._running or not self._parameterNode or not self._parameterNode.inputVolume:
             return
         volume = self._parameterNode.inputVolume
-        options = self.logic.designOptions(self._parameterNode)
+        options = None
+        with slicer.util.tryWithErrorDisplay(_("Failed to compute the transfer function.")):
+            options = self.logic.designOptions(self._parameterNode)
+        if options is None:
+            return
         from IsoSimilarityTFLib.session import fit_levels
 
         dimensions = volume.GetImageData().GetDimensions() if volume.GetImageData() else (0, 0, 0)
@@ -893,29 +897,8 @@ class IsoSimilarityTFLogic(ScriptedLoadableModuleLogic, DesignSession):
     # Running ---------------------------------------------------------------------------------------------------------
     @staticmethod
     def designOptions(parameterNode) -> dict:
-        """The engine's options (``design_transfer_function`` keywords) from the parameter node."""
-        return {
-            "n_bins": int(parameterNode.bins),
-            "levels": int(parameterNode.levels) or None,
-            "crossing": parameterNode.crossing,
-            "normalization": parameterNode.normalization,
-            "preference": (
-                float(parameterNode.preferenceValue)
-                if parameterNode.preference == "number"
-                else parameterNode.preference
-            ),
-            "damping": float(parameterNode.damping),
-            "max_iter": int(parameterNode.maxIterations),
-            "convergence_iter": int(parameterNode.convergenceIterations),
-            "max_classes": int(parameterNode.maxClasses),
-            "background": parameterNode.background,
-            "unconverged": parameterNode.unconverged,
-            # A Detail setting: the session maps it to "auto", a count or "all" once the classes are known.
-            "tissues": int(parameterNode.tissues),
-            "colors": parameterNode.colors,
-            "modality": None if parameterNode.modality == "auto" else parameterNode.modality,
-            "gradient_opacity": parameterNode.gradientOpacity,
-        }
+        """The engine's options (``design_transfer_function`` keywords) from the parameter node, checked."""
+        return engine_options(parameterNode)
 
     # Reports ---------------------------------------------------------------------------------------------------------
     @staticmethod

@@ -369,3 +369,79 @@ def test_the_visibility_boxes_are_disabled_in_solo_mode(panel, module):
     assert not any(box.enabled for box in boxes)
     widget.onShowAllButton()
     assert all(box.enabled for box in boxes)
+
+
+# The panel's parameters to the engine's options -------------------------------------------------------------------
+def _defaults(module, **changes):
+    import typing
+
+    cls = module.IsoSimilarityTFParameterNode
+    values = {name: getattr(cls, name, None) for name in typing.get_type_hints(cls)}
+    values.update(changes)
+    return _ParameterNode(**values)
+
+
+def _other_value(option):
+    """A value of the option's entry other than its default: another word, or a number inside the bounds."""
+    from IsoSimilarityTFLib.options import OPTIONS
+
+    entry = OPTIONS[option]
+    if entry.kind == "choice":
+        return next(word for word in reversed(entry.choices) if word != entry.default)
+    default = entry.default if entry.default is not None else entry.minimum
+    step = 1 if entry.kind in ("int", "choice-or-int") else 0.125
+    if isinstance(default, str):  # preference: a word; the other word
+        return next(word for word in entry.choices if word != default)
+    return default + step if entry.maximum is None or default + step <= entry.maximum else default - step
+
+
+def test_the_defaults_of_the_panel_are_the_engines(module):
+    from IsoSimilarityTFLib.options import DEFAULT_OPTIONS
+    from IsoSimilarityTFLib.panel import PANEL_OPTIONS
+
+    options = module.IsoSimilarityTFLogic.designOptions(_defaults(module))
+    assert set(options) == set(PANEL_OPTIONS.values()) == set(DEFAULT_OPTIONS) - {"value_range"}
+    expected = {**{k: DEFAULT_OPTIONS[k] for k in options}, "tissues": AUTO_DETAIL}  # the Detail: automatic
+    assert options == expected
+    assert options["levels"] is None and options["modality"] is None
+
+
+@pytest.mark.parametrize("parameter", sorted(__import__("IsoSimilarityTFLib.panel").panel.PANEL_OPTIONS))
+def test_each_parameter_reaches_its_engine_option_and_only_it(module, parameter):
+    from IsoSimilarityTFLib.panel import PANEL_OPTIONS
+
+    option = PANEL_OPTIONS[parameter]
+    base = module.IsoSimilarityTFLogic.designOptions(_defaults(module))
+    value = 2 if parameter == "tissues" else _other_value(option)
+    options = module.IsoSimilarityTFLogic.designOptions(_defaults(module, **{parameter: value}))
+    assert options[option] == value and type(options[option]) is type(value)
+    assert {k: v for k, v in options.items() if k != option} == {k: v for k, v in base.items() if k != option}
+
+
+def test_the_panel_words_for_none_and_a_number(module):
+    design_options = module.IsoSimilarityTFLogic.designOptions
+    assert design_options(_defaults(module, levels=3))["levels"] == 3
+    assert design_options(_defaults(module, modality="mr"))["modality"] == "mr"
+    assert design_options(_defaults(module, preference="number", preferenceValue=-2.5))["preference"] == -2.5
+    assert design_options(_defaults(module, preference="minimum", preferenceValue=-2.5))["preference"] == "minimum"
+    assert design_options(_defaults(module, tissues=9))["tissues"] == 9
+
+
+@pytest.mark.parametrize(("parameter", "value"), [("bins", 1), ("damping", 1.5), ("crossing", "both"), ("tissues", -1)])
+def test_a_bad_parameter_is_refused_before_anything_runs(module, parameter, value):
+    from IsoSimilarityTFLib import OptionError
+
+    with pytest.raises(OptionError):
+        module.IsoSimilarityTFLogic.designOptions(_defaults(module, **{parameter: value}))
+
+
+def test_apply_designs_with_the_panels_options(panel, module):
+    widget, volume = panel
+    widget._parameterNode = _defaults(module, inputVolume=volume, bins=32, levels=2, modality="mr")
+    widget.panel.set_parameters(widget._parameterNode, node=__import__("vtk").vtkObject())
+    widget._pollTimer = mock.MagicMock(name="timer")
+    widget.onApplyButton()
+    design = widget.logic.design
+    assert (design.n_bins, design.options["levels"], design.options["modality"]) == (32, 2, "mr")
+    assert design.options["tissues"] == "auto" and widget.panel.shown_volume is volume and not widget._running
+    assert mrml.design_of_volume(volume).to_dict() == design.to_dict()

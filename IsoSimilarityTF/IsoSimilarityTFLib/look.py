@@ -28,10 +28,7 @@ from typing import Optional
 import numpy as np
 
 from .classes import PALETTE, IsovalueClass
-
-KINDS = ("ct", "mr", "8bit")
-COLOR_SCHEMES = ("ramp", "distinct")
-GRADIENT_OPACITY = ("off", "auto")
+from .options import COLOR_SCHEMES, GRADIENT_OPACITY, KINDS  # noqa: F401 (GRADIENT_OPACITY: still importable here)
 
 # Tissue colour ramp, low to high intensity: dark red, tan, ivory, white (our own anchors, in 0..1).
 RAMP = (

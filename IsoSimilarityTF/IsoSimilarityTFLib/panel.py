@@ -9,7 +9,56 @@ model observes the scene and the parameter node itself with plain VTK observers,
 from typing import Callable, Optional
 
 from . import mrml
+from .errors import OptionError
+from .options import check_options
 from .session import AUTO_DETAIL, DesignSession
+
+#: The panel's parameters (the module's parameter node) and the engine options they set
+#: (``design_transfer_function`` keywords); the parameter node takes each one's range, words and default from the
+#: options table (``IsoSimilarityTF.py``).
+PANEL_OPTIONS = {
+    "bins": "n_bins",
+    "levels": "levels",
+    "crossing": "crossing",
+    "normalization": "normalization",
+    "preference": "preference",
+    "damping": "damping",
+    "maxIterations": "max_iter",
+    "convergenceIterations": "convergence_iter",
+    "maxClasses": "max_classes",
+    "background": "background",
+    "unconverged": "unconverged",
+    "tissues": "tissues",
+    "colors": "colors",
+    "modality": "modality",
+    "gradientOpacity": "gradient_opacity",
+}
+#: Parameter values that stand for the engine's None: all octree levels, a kind of volume detected from the data.
+PANEL_NONE = {"levels": 0, "modality": "auto"}
+#: The preference word for "the number in preferenceValue".
+PREFERENCE_NUMBER = "number"
+
+
+def engine_options(parameters) -> dict:
+    """The engine's options from the panel's parameters, checked against the options table (once, here: a bad value
+    raises :class:`~.errors.OptionError` before anything starts).
+
+    ``tissues`` stays the panel's Detail (an int; the session maps it to a grouping once the classes are known).
+    """
+    options = {}
+    for parameter, option in PANEL_OPTIONS.items():
+        value = getattr(parameters, parameter)
+        if parameter == "preference" and value == PREFERENCE_NUMBER:
+            value = parameters.preferenceValue
+        elif parameter in PANEL_NONE and value == PANEL_NONE[parameter]:
+            value = None
+        options[option] = value
+    detail = options.pop("tissues")
+    if isinstance(detail, bool) or not isinstance(detail, int) or detail < AUTO_DETAIL:
+        raise OptionError(f"the Detail must be {AUTO_DETAIL} (automatic) or a number of tissues; got {detail!r}")
+    checked = check_options(options)
+    return {**{option: checked[option] for option in options}, "tissues": detail}
+
 
 # vtkCommand::ModifiedEvent (the parameter node's), without importing VTK here.
 _MODIFIED_EVENT = "ModifiedEvent"
