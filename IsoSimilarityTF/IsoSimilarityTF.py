@@ -966,6 +966,7 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
             self.test_IsoSimilarityTF_tissues,
             self.test_IsoSimilarityTF_run,
             self.test_IsoSimilarityTF_cancel,
+            self.test_IsoSimilarityTF_panel,
             self.test_IsoSimilarityTF_widget,
         ):
             self.setUp()
@@ -1055,6 +1056,11 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
     def test_IsoSimilarityTF_cancel(self):
         self.delayDisplay("Cancelling leaves the scene untouched")
         self._check("cancel")
+        self.delayDisplay("Test passed")
+
+    def test_IsoSimilarityTF_panel(self):
+        self.delayDisplay("The panel follows the scene: auto-selected input, two volumes, scene close")
+        self._check("panel")
         self.delayDisplay("Test passed")
 
     def test_IsoSimilarityTF_widget(self):

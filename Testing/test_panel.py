@@ -1,82 +1,28 @@
 """The panel's state (IsoSimilarityTFLib.panel) on a real headless scene (slicer-core), with the events in Slicer's
-own order: the real ``vtkMRMLScene.Import`` of a saved scene and ``Clear``, the real singleton parameter node, the
-real Volume Rendering logic's presets.
+own order: the real ``vtkMRMLScene.Import`` of a saved scene, the real singleton parameter node, the real Volume
+Rendering logic's presets. The self-test check ``panel`` (test_module_selftest.py) covers the selector's
+auto-selection (F4), two volumes and ``Clear``.
 
 What stands in for Slicer's Python: the parameter node wrapper (only the two parameters the state reads, stored in the
-real MRML node as the wrapper stores them) and the input selector's auto-selection (an observer of NodeAddedEvent).
+real MRML node as the wrapper stores them: selftest.NodeParameters).
 """
 
 import numpy as np
 import pytest
 
 from IsoSimilarityTFLib import mrml
-from IsoSimilarityTFLib.panel import PanelModel, PanelView, gui_tag
-from IsoSimilarityTFLib.selftest import SPACING, hand_made_design, nested_volume
-from IsoSimilarityTFLib.session import AUTO_DETAIL, TISSUE, DesignSession
+from IsoSimilarityTFLib.panel import PanelModel, gui_tag
+from IsoSimilarityTFLib.selftest import (
+    SPACING,
+    NodeParameters,
+    RecordingView,
+    hand_made_design,
+    nested_volume,
+    singleton_parameter_node,
+)
+from IsoSimilarityTFLib.session import TISSUE, DesignSession
 
 MODULE_NAME = "IsoSimilarityTF"
-
-
-def parameter_node(scene):
-    """The module's singleton parameter node, as ScriptedLoadableModuleLogic.getParameterNode finds or creates it
-    (Slicer v5.8.1 ScriptedLoadableModule.py:310-363)."""
-    node = scene.GetSingletonNode(MODULE_NAME, "vtkMRMLScriptedModuleNode")
-    if node is None:
-        node = scene.CreateNodeByClass("vtkMRMLScriptedModuleNode")
-        node.UnRegister(None)
-        node.SetSingletonTag(MODULE_NAME)
-        node.SetAttribute("ModuleName", MODULE_NAME)
-        node.SetName(scene.GenerateUniqueName(MODULE_NAME))
-        node = scene.AddNode(node)
-    return node
-
-
-class NodeParameters:
-    """``inputVolume`` and ``tissues`` kept in the MRML node as Slicer's parameter node wrapper keeps them
-    (serializers.py at v5.8.1: a node as a reference named after the parameter, :405-409; an int as its text,
-    :258-261; a missing value read as the default, wrapper.py:43-46)."""
-
-    def __init__(self, node):
-        self.parameterNode = node
-
-    @property
-    def inputVolume(self):
-        return self.parameterNode.GetNodeReference("inputVolume")
-
-    @inputVolume.setter
-    def inputVolume(self, volume):
-        self.parameterNode.SetParameter("inputVolume", "")
-        self.parameterNode.SetNodeReferenceID("inputVolume", volume.GetID() if volume is not None else None)
-
-    @property
-    def tissues(self):
-        text = self.parameterNode.GetParameter("tissues")
-        return int(text) if text else AUTO_DETAIL
-
-    @tissues.setter
-    def tissues(self, value):
-        self.parameterNode.SetParameter("tissues", str(int(value)))
-
-
-class RecordingView(PanelView):
-    """The panel's drawing, recorded; answers the overwrite question with ``answer``."""
-
-    def __init__(self, answer=True):
-        self.designs, self.changes, self.asked, self.answer = [], [], [], answer
-
-    def show_design(self, design):
-        self.designs.append(design)
-
-    def show_outside_change(self, change):
-        self.changes.append(change)
-
-    def confirm_overwrite(self, change):
-        self.asked.append(change)
-        return self.answer
-
-    @property
-    def shown(self):
-        return self.designs[-1] if self.designs else None
 
 
 def open_panel(app, view=None):
@@ -84,7 +30,7 @@ def open_panel(app, view=None):
     ``stop``, the widget's cleanup)."""
     model = PanelModel(DesignSession(app.volume_rendering_logic), view or RecordingView())
     model.observe_scene(app.scene)
-    model.set_parameters(NodeParameters(parameter_node(app.scene)))
+    model.set_parameters(NodeParameters(singleton_parameter_node(app.scene, MODULE_NAME)))
     return model
 
 
@@ -100,23 +46,6 @@ def panel_of(slicer_app):
     yield open_one
     for model in models:
         model.stop()
-
-
-def auto_select_first_volume(scene, parameters):
-    """The input selector (a qMRMLNodeComboBox with noneEnabled false) selects the first scalar volume added, and the
-    wrapper writes it into the parameter node ("QMRMLCombobox selects the first instance of the specified node
-    type", Slicer v5.8.1 qSlicerSegmentationsModuleWidget.cxx:80-81). When the combo box does so during a scene
-    import is not known here; the tests that use this add volumes outside imports."""
-
-    from vtkmodules.util.misc import calldata_type
-    from vtkmodules.util.vtkConstants import VTK_OBJECT
-
-    @calldata_type(VTK_OBJECT)
-    def on_node_added(caller, event, node):
-        if parameters.inputVolume is None and node.GetClassName() == "vtkMRMLScalarVolumeNode":
-            parameters.inputVolume = node
-
-    return scene.AddObserver(scene.NodeAddedEvent, on_node_added)
 
 
 def add_volume(app, name):
@@ -191,63 +120,6 @@ def test_f1_nothing_is_restored_while_the_import_runs(tmp_path, slicer_app, pane
     assert restored_while_importing and not any(restored_while_importing)
 
 
-def test_clear_keeps_the_parameter_node_and_the_panel_shows_nothing_then_the_next_volume(slicer_app, panel_of):
-    view = RecordingView()
-    model = panel_of(view)
-    volume = add_volume(slicer_app, "Nested")
-    model.parameters.inputVolume = volume
-    model.session.apply(volume, hand_made_design())
-    model.show_result(volume, model.session.design)
-    node = model.parameters.parameterNode
-    slicer_app.scene.Clear(0)
-    assert slicer_app.scene.GetSingletonNode(MODULE_NAME, "vtkMRMLScriptedModuleNode") is node  # kept, reset
-    assert model.shown_volume is None and view.shown is None and model.session.design is None
-    assert model.parameters.inputVolume is None
-    other = add_volume(slicer_app, "Other")
-    model.parameters.inputVolume = other  # the same observer still follows the node
-    assert model.shown_volume is other and view.shown is None
-
-
-# F4 -----------------------------------------------------------------------------------------------------------------
-def test_f4_the_selector_auto_selects_and_a_design_applied_behind_the_panel_is_not_regrouped(slicer_app, panel_of):
-    view = RecordingView()
-    model = panel_of(view)
-    auto_select_first_volume(slicer_app.scene, model.parameters)
-    volume = add_volume(slicer_app, "Nested")
-    assert model.shown_volume is volume and view.shown is None  # selected with no design yet
-    model.session.apply(volume, hand_made_design())  # the logic, without the panel being told
-    other = add_volume(slicer_app, "Other")
-    model.refresh()  # enter()
-    assert mrml.design_of_volume(volume).options["tissues"] == "all"
-    model.parameters.inputVolume = other
-    assert view.shown is None and model.detail_shown is None
-    model.parameters.inputVolume = volume
-    assert len(view.shown.tissues) == 4 and model.parameters.tissues == model.detail_shown == 3
-
-
-def test_two_volumes_each_show_their_own_design_and_detail(slicer_app, panel_of):
-    view = RecordingView()
-    model = panel_of(view)
-    first, second = add_volume(slicer_app, "First"), add_volume(slicer_app, "Second")
-    for volume in (first, second):
-        model.parameters.inputVolume = volume
-        model.session.apply(volume, hand_made_design())
-        model.show_result(volume, model.session.design)
-    model.parameters.tissues = 1  # the Detail slider, on the second volume
-    assert mrml.design_of_volume(second).n_tissues == 1
-    model.parameters.inputVolume = first
-    assert len(view.shown.tissues) == 4 and model.parameters.tissues == 3  # the first one's grouping, untouched
-    model.parameters.inputVolume = second
-    assert len(view.shown.tissues) == 2 and model.parameters.tissues == 1
-
-
-def test_a_saved_detail_is_left_alone_while_no_design_is_shown(slicer_app, panel_of):
-    model = panel_of()
-    model.parameters.tissues = 7
-    model.parameters.inputVolume = add_volume(slicer_app, "Nested")
-    assert model.parameters.tissues == 7 and model.detail_shown is None
-
-
 # F5: a preset copied in with CopyContent --------------------------------------------------------------------------
 def test_f5_showing_the_design_again_after_a_preset_brings_back_its_shading_and_gradient_opacity(slicer_app, panel_of):
     view = RecordingView(answer=True)
@@ -310,7 +182,7 @@ def test_stop_removes_every_observer(slicer_app, panel_of):
     view = RecordingView()
     model = panel_of(view)
     model.stop()
-    parameters = NodeParameters(parameter_node(slicer_app.scene))
+    parameters = NodeParameters(singleton_parameter_node(slicer_app.scene, MODULE_NAME))
     parameters.inputVolume = add_volume(slicer_app, "Nested")
     slicer_app.scene.Clear(0)
     assert view.designs == [] and model.parameters is None
