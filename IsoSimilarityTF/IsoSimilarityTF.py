@@ -1076,6 +1076,10 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
         widget.logic.apply(volumeNode, hand_made_design())
         otherVolume = self._addVolume(nested_volume(), SPACING, "Other")
         widget.enter()
+        from IsoSimilarityTFLib import mrml
+
+        # The input selector had selected Nested before its design was applied: the design is not regrouped.
+        self.assertEqual(mrml.design_of_volume(volumeNode).options["tissues"], "all")
         # Re-entering keeps the one GUI connection and the user's choices (Slicer 5.8 reset them, Slicer#7545).
         widget._parameterNode.crossing = "strict"
         widget._parameterNode.background = "lowest"
@@ -1128,5 +1132,13 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
         self.assertIs(widget._parameterNode.inputVolume, volumeNode)
         widget._parameterNode.crossing = "inclusive"
         widget._parameterNode.background = "largest"
+        # Scene closes reset the parameter node to its defaults and nothing else (on Slicer 5.8 the combo boxes'
+        # old connectors wrote their first choices, audit F2).
+        for _close in range(5):
+            slicer.mrmlScene.Clear(0)
+            widget.enter()
+        self.assertEqual(widget._parameterNode.modality, "auto")
+        self.assertEqual(widget.ui.modalityComboBox.currentText, choiceLabels()["modality"]["auto"])
+        self.assertEqual(widget.ui.tissuesTreeWidget.topLevelItemCount, 0)
         widget.exit()
         self.delayDisplay("Test passed")
