@@ -396,9 +396,13 @@ def _other_value(option):
 
 
 def test_the_defaults_of_the_panel_are_the_engines(module):
+    import typing
+
     from IsoSimilarityTFLib.options import DEFAULT_OPTIONS
     from IsoSimilarityTFLib.panel import PANEL_OPTIONS
 
+    fields = set(typing.get_type_hints(module.IsoSimilarityTFParameterNode))
+    assert fields - {"inputVolume", "preferenceValue"} == set(PANEL_OPTIONS)  # every parameter reaches the engine
     options = module.IsoSimilarityTFLogic.designOptions(_defaults(module))
     assert set(options) == set(PANEL_OPTIONS.values()) == set(DEFAULT_OPTIONS) - {"value_range"}
     expected = {**{k: DEFAULT_OPTIONS[k] for k in options}, "tissues": AUTO_DETAIL}  # the Detail: automatic

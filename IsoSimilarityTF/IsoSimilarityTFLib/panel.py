@@ -123,7 +123,7 @@ class PanelModel:
         self.shown_volume = None
         #: The Detail the shown design is grouped with (None: no design shown; the Detail is then left alone).
         self.detail_shown: Optional[int] = None
-        #: An Apply is under way (the panel then ignores the parameter node).
+        #: An Apply is under way (the widget sets it; the panel then ignores the parameter node until it ends).
         self.running = False
         self._scene = None
         self._observations = []
@@ -220,14 +220,6 @@ class PanelModel:
         return self.parameters.tissues if self.parameters is not None else AUTO_DETAIL
 
     # Apply -------------------------------------------------------------------------------------------------------
-    def start(self) -> None:
-        self.running = True
-
-    def stop_running(self) -> None:
-        """The Apply ended (done, failed or cancelled): follow the parameter node again."""
-        self.running = False
-        self.refresh()
-
     def show_result(self, volume, design) -> None:
         """A design was computed for the volume and is shown in the 3D view: show it in the panel."""
         self._show(volume, design)
