@@ -165,6 +165,19 @@ def test_a_colour_only_change_in_volume_rendering_is_asked_about_before_an_edit(
     assert view.asked == [mrml.CHANGE_EDITED] and mrml.modified_outside(volume)
 
 
+def test_a_design_applied_to_another_volume_behind_the_panel_is_not_edited_from_it(slicer_app, panel_of):
+    view = RecordingView()
+    model = panel_of(view)
+    shown, _ = designed_volume(slicer_app, model)
+    other = add_volume(slicer_app, "Other")
+    model.session.apply(other, hand_made_design())  # a script, with the module's logic
+    before = mrml.design_of_volume(other).to_dict()
+    model.parameters.tissues = 1
+    model.edit(lambda: model.session.edit(TISSUE, 3, opacity=0.5))
+    assert mrml.design_of_volume(other).to_dict() == before
+    assert mrml.design_of_volume(shown).n_tissues == 3
+
+
 # F2 -----------------------------------------------------------------------------------------------------------------
 class _Wrapper:
     def __init__(self, connected):

@@ -178,7 +178,7 @@ class PanelModel:
 
     def show_volume(self, volume) -> None:
         """Show the design stored for the volume (an earlier run, a saved scene), or none."""
-        self._show(volume, self.session.restore(volume))
+        self.show_result(volume, self.session.restore(volume))
         change = self.session.outside_change()
         if change is not None:
             self.view.show_outside_change(change)
@@ -199,7 +199,7 @@ class PanelModel:
     def detail_changed(self) -> None:
         """Regroup the shown design when the parameter node's Detail is not the one it is grouped with."""
         detail = self.parameters.tissues
-        if self.session.design is None or self.detail_shown is None or detail == self.detail_shown:
+        if not self.shows_session_design() or detail == self.detail_shown:
             self.view.show_detail_label()
             return
         self.detail_shown = detail
@@ -212,19 +212,25 @@ class PanelModel:
         self.view.show_tree(self.session.design)
         self.view.show_detail_label()
 
+    def shows_session_design(self) -> bool:
+        """Whether the panel shows the session's current design: the Detail and the edits act on it only (a script
+        may have applied a design to another volume behind the panel)."""
+        return (
+            self.session.design is not None
+            and self.detail_shown is not None
+            and self.session.volume_node is self.shown_volume
+        )
+
     def detail_design(self):
         """The design the Detail label describes (None when the panel shows none)."""
-        return self.session.design if self.detail_shown is not None else None
+        return self.session.design if self.shows_session_design() else None
 
     def detail(self) -> int:
         return self.parameters.tissues if self.parameters is not None else AUTO_DETAIL
 
     # Apply -------------------------------------------------------------------------------------------------------
     def show_result(self, volume, design) -> None:
-        """A design was computed for the volume and is shown in the 3D view: show it in the panel."""
-        self._show(volume, design)
-
-    def _show(self, volume, design) -> None:
+        """A design (or none) is the volume's: show it in the panel (after an Apply, or a restore)."""
         self.shown_volume = volume
         self.detail_shown = self.session.detail()
         # The slider's range first: it must not clamp the grouping written next.
@@ -249,6 +255,6 @@ class PanelModel:
 
     def edit(self, action: Callable[[], None]) -> None:
         """One edit of the shown design (a session method that rewrites the transfer function), after asking."""
-        if self.session.design is not None and self._confirm():
+        if self.shows_session_design() and self._confirm():
             self.view.attempt("edit", action)
         self.view.show_rows()
