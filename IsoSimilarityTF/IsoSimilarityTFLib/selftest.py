@@ -450,7 +450,9 @@ def check_panel(new_session, add_volume: AddVolume) -> None:
     @calldata_type(VTK_OBJECT)
     def select_first_volume(caller, event, node):
         # What the selector (a qMRMLNodeComboBox, noneEnabled false) does: "QMRMLCombobox selects the first instance
-        # of the specified node type" (Slicer v5.8.1 qSlicerSegmentationsModuleWidget.cxx:80-81).
+        # of the specified node type" (Slicer v5.8.1 qSlicerSegmentationsModuleWidget.cxx:80-81). Whether it does so
+        # at once or after a batch of scene changes, and during an import, is not known here: this check adds its
+        # volumes one by one, outside any import.
         if parameters.inputVolume is None and node.GetClassName() == "vtkMRMLScalarVolumeNode":
             parameters.inputVolume = node
 
