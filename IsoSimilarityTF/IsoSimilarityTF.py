@@ -216,9 +216,6 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
         self.logic = None
         self._parameterNode = None
         self._parameterNodeGuiTag = None
-        self._selectionNode = None
-        # The input follows the scene's active volume until the user picks another volume.
-        self._followActiveVolume = True
         # The design being computed: a child process (IsoSimilarityTFLib.worker) and the volume it is for.
         self._job = None
         self._jobVolume = None
@@ -303,7 +300,6 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
         self.setParameterNode(None)  # the panel's state forgets the design (it observes the scene too)
 
     def onSceneEndClose(self, caller, event) -> None:
-        self._followActiveVolume = True
         self._observeSelectionNode()
         if self.parent.isEntered:
             self.initializeParameterNode()
@@ -311,9 +307,7 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
     # Parameter node --------------------------------------------------------------------------------------------------
     def initializeParameterNode(self) -> None:
         self.setParameterNode(self.logic.getParameterNode())
-        activeVolume = self._activeVolume()
-        if activeVolume and (self._followActiveVolume or not self._parameterNode.inputVolume):
-            self._parameterNode.inputVolume = activeVolume
+        self.panel.select_active_volume()
         self.panel.refresh()
 
     def setParameterNode(self, inputParameterNode: Optional[IsoSimilarityTFParameterNode]) -> None:
@@ -383,33 +377,11 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
     # Active volume ---------------------------------------------------------------------------------------------------
     def _observeSelectionNode(self) -> None:
         appLogic = slicer.app.applicationLogic()
-        selectionNode = appLogic.GetSelectionNode() if appLogic else None
-        if selectionNode is self._selectionNode:
-            return
-        if self._selectionNode is not None:
-            self.removeObserver(self._selectionNode, vtk.vtkCommand.ModifiedEvent, self.onSelectionNodeModified)
-        self._selectionNode = selectionNode
-        if selectionNode is not None:
-            self.addObserver(selectionNode, vtk.vtkCommand.ModifiedEvent, self.onSelectionNodeModified)
-
-    def _activeVolume(self):
-        """The scene's active volume if it is a plain scalar volume (the kind the selector lists), else None."""
-        if self._selectionNode is None or not self._selectionNode.GetActiveVolumeID():
-            return None
-        node = slicer.mrmlScene.GetNodeByID(self._selectionNode.GetActiveVolumeID())
-        return node if node is not None and node.GetClassName() == "vtkMRMLScalarVolumeNode" else None
-
-    def onSelectionNodeModified(self, caller=None, event=None) -> None:
-        if not self._followActiveVolume or self._parameterNode is None or self._running:
-            return
-        activeVolume = self._activeVolume()
-        if activeVolume is not None and activeVolume is not self._parameterNode.inputVolume:
-            self._parameterNode.inputVolume = activeVolume
+        self.panel.observe_selection(appLogic.GetSelectionNode() if appLogic else None)
 
     def onInputVolumeActivated(self, node) -> None:
         """The user picked a volume in the selector: stop following the active volume unless they picked it."""
-        activeVolume = self._activeVolume()
-        self._followActiveVolume = node is None or activeVolume is None or node is activeVolume
+        self.panel.volume_picked(node)
 
     # Apply. A design expected to take less than about a second runs here, on the main thread, repainting and
     # checking Cancel at each progress report (between affinity propagation's iterations too); a longer one runs in a
@@ -1120,7 +1092,7 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
         self.assertEqual(widget.logic.design.options["tissues"], "auto")
         # The input follows the active volume until the user picks another one.
         selectionNode = slicer.app.applicationLogic().GetSelectionNode()
-        widget._followActiveVolume = True
+        widget.panel.follow_active_volume = True
         selectionNode.SetActiveVolumeID(None)
         selectionNode.SetActiveVolumeID(otherVolume.GetID())
         self.assertIs(widget._parameterNode.inputVolume, otherVolume)

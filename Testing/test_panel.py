@@ -178,6 +178,38 @@ def test_a_design_applied_to_another_volume_behind_the_panel_is_not_edited_from_
     assert mrml.design_of_volume(shown).n_tissues == 3
 
 
+def test_the_input_follows_the_active_volume_until_the_user_picks_another(slicer_app, panel_of):
+    model = panel_of()
+    selection = slicer_app.app_logic.GetSelectionNode()
+    model.observe_selection(selection)
+    first, second = add_volume(slicer_app, "First"), add_volume(slicer_app, "Second")
+    selection.SetActiveVolumeID(first.GetID())
+    assert model.parameters.inputVolume is first and model.shown_volume is first
+    selection.SetActiveVolumeID(second.GetID())
+    assert model.parameters.inputVolume is second
+    model.volume_picked(first)  # the selector's nodeActivated, then its write into the parameter node
+    model.parameters.inputVolume = first
+    selection.SetActiveVolumeID(None)
+    selection.SetActiveVolumeID(second.GetID())
+    model.select_active_volume()  # the module entered again
+    assert model.parameters.inputVolume is first
+    model.volume_picked(second)  # picking the active volume follows it again
+    model.parameters.inputVolume = second
+    selection.SetActiveVolumeID(first.GetID())
+    assert model.parameters.inputVolume is first
+    label_map = slicer_app.scene.AddNewNodeByClass("vtkMRMLLabelMapVolumeNode")
+    selection.SetActiveVolumeID(label_map.GetID())  # not a volume the selector lists
+    assert model.parameters.inputVolume is first and model.active_volume() is None
+    model.volume_picked(second)
+    model.parameters.inputVolume = second
+    slicer_app.scene.Clear(0)  # a new scene: follow the active volume again
+    third = add_volume(slicer_app, "Third")
+    selection = slicer_app.app_logic.GetSelectionNode()
+    model.observe_selection(selection)
+    selection.SetActiveVolumeID(third.GetID())
+    assert model.parameters.inputVolume is third
+
+
 # F2 -----------------------------------------------------------------------------------------------------------------
 class _Wrapper:
     def __init__(self, connected):

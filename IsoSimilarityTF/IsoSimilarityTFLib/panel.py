@@ -125,16 +125,33 @@ class PanelModel:
         self.detail_shown: Optional[int] = None
         #: An Apply is under way (the widget sets it; the panel then ignores the parameter node until it ends).
         self.running = False
+        #: The input follows the scene's active volume (the selection node's) until the user picks another volume.
+        self.follow_active_volume = True
         self._scene = None
         self._observations = []
         self._parameter_observation = None
+        self._selection_node = None
+        self._selection_observation = None
 
     # Connections ---------------------------------------------------------------------------------------------------
     def observe_scene(self, scene) -> None:
         """Follow the scene's closes and imports (once; :meth:`stop` undoes it)."""
         self._scene = scene
         self._observe(scene, scene.StartCloseEvent, self.on_scene_start_close)
+        self._observe(scene, scene.EndCloseEvent, self.on_scene_end_close)
         self._observe(scene, scene.EndImportEvent, self.on_scene_end_import)
+
+    def observe_selection(self, selection_node) -> None:
+        """Follow the active volume of this selection node (the application logic's; again after a scene close, in
+        case it is another node)."""
+        if selection_node is self._selection_node:
+            return
+        if self._selection_observation is not None:
+            self._selection_node.RemoveObserver(self._selection_observation)
+            self._selection_observation = None
+        self._selection_node = selection_node
+        if selection_node is not None:
+            self._selection_observation = selection_node.AddObserver(_MODIFIED_EVENT, self._on_selection_modified)
 
     def set_parameters(self, parameters, node=None) -> None:
         """Follow a parameter node (``node``: the object whose ModifiedEvent to observe, by default the wrapper's
@@ -150,6 +167,7 @@ class PanelModel:
     def stop(self) -> None:
         """Remove every observer (the widget is cleaned up)."""
         self.set_parameters(None)
+        self.observe_selection(None)
         for observed, tag in self._observations:
             observed.RemoveObserver(tag)
         self._observations = []
@@ -159,6 +177,33 @@ class PanelModel:
 
     def _observe(self, observed, event, method) -> None:
         self._observations.append((observed, observed.AddObserver(event, lambda caller, event: method())))
+
+    # The active volume -------------------------------------------------------------------------------------------
+    def active_volume(self):
+        """The scene's active volume if it is a plain scalar volume (the kind the selector lists), else None."""
+        node_id = self._selection_node.GetActiveVolumeID() if self._selection_node is not None else None
+        node = self._scene.GetNodeByID(node_id) if node_id and self._scene is not None else None
+        return node if node is not None and node.GetClassName() == "vtkMRMLScalarVolumeNode" else None
+
+    def select_active_volume(self) -> None:
+        """The module is entered: select the active volume if the input follows it or nothing is selected."""
+        active = self.active_volume()
+        if active is not None and self.parameters is not None:
+            if self.follow_active_volume or self.parameters.inputVolume is None:
+                self.parameters.inputVolume = active
+
+    def volume_picked(self, node) -> None:
+        """The user picked a volume in the selector: the input follows the active volume again only if they picked
+        it (or none)."""
+        active = self.active_volume()
+        self.follow_active_volume = node is None or active is None or node is active
+
+    def _on_selection_modified(self, caller, event) -> None:
+        if not self.follow_active_volume or self.parameters is None or self.running:
+            return
+        active = self.active_volume()
+        if active is not None and active is not self.parameters.inputVolume:
+            self.parameters.inputVolume = active
 
     # Following the scene -----------------------------------------------------------------------------------------
     def refresh(self) -> None:
@@ -194,6 +239,9 @@ class PanelModel:
         self.shown_volume = None
         self.detail_shown = None
         self.view.show_design(None)
+
+    def on_scene_end_close(self) -> None:
+        self.follow_active_volume = True
 
     # The Detail --------------------------------------------------------------------------------------------------
     def detail_changed(self) -> None:
