@@ -29,8 +29,8 @@ from slicer.ScriptedLoadableModule import (
 from slicer.util import VTKObservationMixin
 
 from IsoSimilarityTFLib.options import OPTIONS
-from IsoSimilarityTFLib.panel import PanelModel, PanelView, engine_options, gui_tag
-from IsoSimilarityTFLib.session import AUTO_DETAIL, CLASS, TISSUE, Cancelled, DesignSession
+from IsoSimilarityTFLib.panel import JOB_DONE, JOB_VOLUME_REMOVED, PanelModel, PanelView, engine_options, gui_tag
+from IsoSimilarityTFLib.session import AUTO_DETAIL, CLASS, TISSUE, DesignSession
 
 #
 # IsoSimilarityTF
@@ -216,12 +216,6 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
         self.logic = None
         self._parameterNode = None
         self._parameterNodeGuiTag = None
-        # The design being computed: a child process (IsoSimilarityTFLib.worker) and the volume it is for.
-        self._job = None
-        self._jobVolume = None
-        # A design being computed in this process (small ones), and whether Cancel was pressed meanwhile.
-        self._inProcess = False
-        self._cancelRequested = False
         self._pollTimer = None
         self.panel = None
         # The tree's editing widgets by (level, id) of their row.
@@ -229,7 +223,7 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
 
     @property
     def _running(self) -> bool:
-        return self._job is not None or self._inProcess
+        return self.panel is not None and self.panel.running
 
     def setup(self) -> None:
         ScriptedLoadableModuleWidget.setup(self)
@@ -411,34 +405,27 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
         slicer.app.processEvents()
         try:
             with slicer.util.tryWithErrorDisplay(_("Failed to compute the transfer function."), waitCursor=True):
-                self._job = self.logic.start(volume, options)
-                self._jobVolume = volume
+                self.panel.start_job(volume, options)
                 self._pollTimer.start()
         finally:
-            if self._job is None:  # it failed (and said so)
+            if self.panel.job is None:  # it failed (and said so)
                 self._setRunning(False)
 
     def _runInProcess(self, volume, options: dict) -> None:
-        self._inProcess = True
-        self._cancelRequested = False
         self._setRunning(True)
 
         def progress(stage: str, fraction: float, message: str) -> None:
             self._showProgress(stage, fraction, message)
             slicer.app.processEvents()  # repaint, and let Cancel be pressed
-            if self._cancelRequested or volume.GetScene() is None:
-                raise Cancelled()
 
         try:
             with slicer.util.tryWithErrorDisplay(_("Failed to compute the transfer function."), waitCursor=True):
-                try:
-                    design = self.logic.run(volume, options, progress=progress)
-                except Cancelled:
+                design = self.panel.run_here(volume, options, progress)
+                if design is None:
                     self.addLog(_("Cancelled."))
-                    return
-                self._showResult(volume, design)
+                else:
+                    self._logResult(volume, design)
         finally:
-            self._inProcess = False
             self._setRunning(False)
 
     def _showProgress(self, stage: str, fraction: float, message: str) -> None:
@@ -446,36 +433,32 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
         self.ui.progressBar.value = round(low + (high - low) * min(max(fraction, 0.0), 1.0))
         self.ui.progressBar.setFormat(f"{message} (%p%)")
 
-    def _showResult(self, volume, design) -> None:
-        self.panel.show_result(volume, design)
+    def _logResult(self, volume, design) -> None:
         self.addLog(self.logic.summaryText(design))
         logging.info(f"IsoSimilarityTF timings for {volume.GetName()}: {self.logic.timingsText(design)}")
 
     def _pollJob(self) -> None:
-        job = self._job
-        if job is None:
+        if self.panel.job is None:
             self._pollTimer.stop()
             return
-        finished = not job.running
-        for report in job.poll():
-            self._showProgress(*report)
-        if not finished:
-            return
-        self._pollTimer.stop()
-        volume = self._jobVolume
-        self._job = self._jobVolume = None
+        volume = self.panel.job_volume
         try:
             with slicer.util.tryWithErrorDisplay(_("Failed to compute the transfer function."), waitCursor=True):
-                if volume.GetScene() is None:
-                    job.close()
+                reports, state = self.panel.poll_job()
+                for report in reports:
+                    self._showProgress(*report)
+                if state == JOB_VOLUME_REMOVED:
                     raise RuntimeError(_("The input volume was removed from the scene."))
-                self._showResult(volume, self.logic.finish(volume, job))
+                if state == JOB_DONE:
+                    self._logResult(volume, self.logic.design)
         finally:
-            self._setRunning(False)
+            if self.panel.job is None:  # done, failed or removed
+                self._pollTimer.stop()
+                self._setRunning(False)
 
     def onCancelButton(self) -> None:
-        if self._inProcess:  # the design stops at its next progress report, which then says so
-            self._cancelRequested = True
+        if self.panel.in_process:  # the design stops at its next progress report, which then says so
+            self.panel.cancel()
             self.ui.cancelButton.enabled = False
             return
         self._stopJob()
@@ -483,17 +466,14 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
         self.addLog(_("Cancelled."))
 
     def _stopJob(self) -> None:
-        """Kill the design process, if any, and forget it (takes effect at once, at any stage); a design in this
-        process stops at its next progress report."""
-        self._cancelRequested = True
+        """End the design process, if any (at once, at any stage); a design in this process stops at its next
+        progress report."""
         if self._pollTimer is not None:
             self._pollTimer.stop()
-        if self._job is not None:
-            self._job.close()
-        self._job = self._jobVolume = None
+        if self.panel is not None:
+            self.panel.cancel()
 
     def _setRunning(self, running: bool) -> None:
-        self.panel.running = running
         self.ui.progressBar.value = 0
         self.ui.progressBar.setFormat("%p%")
         self.ui.progressBar.visible = running

@@ -147,9 +147,9 @@ def test_f3_closing_slicer_ends_a_running_job(module, values, launcher, tmp_path
     widget.logic = module.IsoSimilarityTFLogic()
     widget.panel = module.PanelModel(widget.logic, widget)
     widget._pollTimer = mock.MagicMock(name="timer")
-    widget._job = _job_at("similarity", values, python, pids, str(tmp_path / "temporary"))
-    folder = widget._job.folder
+    widget.panel.job = _job_at("similarity", values, python, pids, str(tmp_path / "temporary"))
+    folder = widget.panel.job.folder
     widget.cleanup()
-    assert widget._job is None
+    assert widget.panel.job is None
     assert wait_until(lambda: not any(alive(pid) for pid in pids()), timeout=5.0)
     assert not os.path.exists(folder)

@@ -173,13 +173,17 @@ def test_apply_in_process_shows_the_design_and_cancel_changes_nothing(panel, sli
 
     import slicer
 
-    def press_cancel():  # the user presses Cancel while the design runs
-        widget.onCancelButton()
+    pressed = []
+
+    def press_cancel():  # the user presses Cancel once, while the design runs
+        if widget.panel.in_process and not pressed:
+            pressed.append(True)
+            widget.onCancelButton()
 
     slicer.app.processEvents.side_effect = press_cancel
     widget._runInProcess(volume, {"n_bins": 64})
     assert mrml.design_of_volume(volume).to_dict() == stored
-    assert widget.ui.statusLabel.text == "Cancelled." and not widget._running
+    assert pressed and widget.ui.statusLabel.text == "Cancelled." and not widget._running
 
 
 def test_f4_a_design_applied_behind_the_panel_is_not_regrouped(module, slicer_app):

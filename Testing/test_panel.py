@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from IsoSimilarityTFLib import mrml
-from IsoSimilarityTFLib.panel import PanelModel, gui_tag
+from IsoSimilarityTFLib.panel import JOB_DONE, JOB_RUNNING, JOB_VOLUME_REMOVED, PanelModel, gui_tag
 from IsoSimilarityTFLib.selftest import (
     SPACING,
     NodeParameters,
@@ -208,6 +208,75 @@ def test_the_input_follows_the_active_volume_until_the_user_picks_another(slicer
     model.observe_selection(selection)
     selection.SetActiveVolumeID(third.GetID())
     assert model.parameters.inputVolume is third
+
+
+# Apply and Cancel ----------------------------------------------------------------------------------------------------
+def test_apply_here_shows_the_design_and_cancel_changes_nothing(slicer_app, panel_of):
+    view = RecordingView()
+    model = panel_of(view)
+    volume = add_volume(slicer_app, "Nested")
+    model.parameters.inputVolume = volume
+    reports = []
+    design = model.run_here(volume, {"n_bins": 32, "tissues": 1}, lambda *report: reports.append(report))
+    assert view.shown is design and model.shown_volume is volume and not model.running
+    assert model.parameters.tissues == model.detail_shown and reports[0][0] == "quantize"
+    stored, nodes = mrml.design_of_volume(volume).to_dict(), slicer_app.scene.GetNumberOfNodes()
+
+    def press_cancel(stage, fraction, message):  # Cancel pressed while the similarity is computed
+        assert model.running
+        if stage == "similarity":
+            model.cancel()
+
+    assert model.run_here(volume, {"n_bins": 64}, press_cancel) is None
+    assert mrml.design_of_volume(volume).to_dict() == stored and slicer_app.scene.GetNumberOfNodes() == nodes
+    assert not model.running and view.shown is design
+
+    def remove_volume(stage, fraction, message):
+        if stage == "similarity" and volume.GetScene() is not None:
+            slicer_app.scene.RemoveNode(volume)
+
+    assert model.run_here(volume, {"n_bins": 64}, remove_volume) is None and not model.running
+
+
+def _poll_until_done(model, timeout=120):
+    import time
+
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        state = model.poll_job()[1]
+        if state != JOB_RUNNING:
+            return state
+        time.sleep(0.05)
+    raise TimeoutError
+
+
+def test_a_job_is_shown_when_done_and_cancel_or_a_removed_volume_leave_nothing(slicer_app, panel_of, tmp_path):
+    import os
+
+    view = RecordingView()
+    model = panel_of(view)
+    volume = add_volume(slicer_app, "Nested")
+    model.parameters.inputVolume = volume
+    model.start_job(volume, {"n_bins": 32})
+    folder = model.job.folder
+    assert model.running
+    other = add_volume(slicer_app, "Other")
+    model.parameters.inputVolume = other  # a script: ignored while the job runs (the selector is disabled)
+    assert model.shown_volume is volume
+    assert _poll_until_done(model) == JOB_DONE
+    assert mrml.design_of_volume(volume).n_bins == 32 and view.designs[-2].n_bins == 32
+    assert model.shown_volume is other and view.shown is None  # then the panel shows the input of now
+    assert model.job is None and not os.path.exists(folder)
+    model.parameters.inputVolume = volume
+    model.start_job(volume, {"n_bins": 1024})
+    folder = model.job.folder
+    model.cancel()
+    assert model.job is None and not model.running and not os.path.exists(folder)
+    model.start_job(volume, {"n_bins": 32})
+    folder = model.job.folder
+    slicer_app.scene.RemoveNode(volume)
+    assert _poll_until_done(model) == JOB_VOLUME_REMOVED
+    assert model.job is None and not os.path.exists(folder)
 
 
 # F2 -----------------------------------------------------------------------------------------------------------------

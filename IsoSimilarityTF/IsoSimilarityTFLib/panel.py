@@ -11,7 +11,11 @@ from typing import Callable, Optional
 from . import mrml
 from .errors import OptionError
 from .options import check_options
-from .session import AUTO_DETAIL, DesignSession
+from .session import AUTO_DETAIL, Cancelled, DesignSession
+
+#: What :meth:`PanelModel.poll_job` says of the job: still running, done (its design shown), or its volume was
+#: removed from the scene meanwhile (nothing shown).
+JOB_RUNNING, JOB_DONE, JOB_VOLUME_REMOVED = "running", "done", "volume-removed"
 
 #: The panel's parameters (the module's parameter node) and the engine options they set
 #: (``design_transfer_function`` keywords); the parameter node takes each one's range, words and default from the
@@ -123,8 +127,12 @@ class PanelModel:
         self.shown_volume = None
         #: The Detail the shown design is grouped with (None: no design shown; the Detail is then left alone).
         self.detail_shown: Optional[int] = None
-        #: An Apply is under way (the widget sets it; the panel then ignores the parameter node until it ends).
-        self.running = False
+        #: The design being computed in a child process (:class:`~.worker.DesignProcess`) and its volume.
+        self.job = None
+        self.job_volume = None
+        #: A design is being computed in this process; Cancel was pressed meanwhile.
+        self.in_process = False
+        self.cancel_requested = False
         #: The input follows the scene's active volume (the selection node's) until the user picks another volume.
         self.follow_active_volume = True
         self._scene = None
@@ -132,6 +140,11 @@ class PanelModel:
         self._parameter_observation = None
         self._selection_node = None
         self._selection_observation = None
+
+    @property
+    def running(self) -> bool:
+        """An Apply is under way: the panel then ignores the parameter node and the active volume until it ends."""
+        return self.job is not None or self.in_process
 
     # Connections ---------------------------------------------------------------------------------------------------
     def observe_scene(self, scene) -> None:
@@ -286,6 +299,57 @@ class PanelModel:
         if design is not None and self.parameters is not None:
             self.parameters.tissues = self.detail_shown
         self.view.show_detail_label()
+
+    def run_here(self, volume, options: dict, progress: Callable[[str, float, str], None]):
+        """Design in this process and show the design. ``progress(stage, fraction, message)`` draws each report and
+        lets Cancel be pressed (:meth:`cancel`). Returns the design, or None when cancelled or when the volume left
+        the scene meanwhile (nothing changed then)."""
+        self.in_process = True
+        self.cancel_requested = False
+
+        def report(stage: str, fraction: float, message: str) -> None:
+            progress(stage, fraction, message)
+            if self.cancel_requested or volume.GetScene() is None:
+                raise Cancelled()
+
+        try:
+            design = self.session.run(volume, options, progress=report)
+        except Cancelled:
+            return None
+        finally:
+            self.in_process = False
+        self.show_result(volume, design)
+        return design
+
+    def start_job(self, volume, options: dict) -> None:
+        """Start designing in a child process (the volume is written for it first); then :meth:`poll_job`."""
+        self.cancel_requested = False
+        self.job = self.session.start(volume, options)
+        self.job_volume = volume
+
+    def poll_job(self) -> tuple:
+        """``(reports, state)``: the job's progress reports since the last call and :data:`JOB_RUNNING`,
+        :data:`JOB_DONE` (its design is shown; the child's error is raised) or :data:`JOB_VOLUME_REMOVED`."""
+        job = self.job
+        finished = not job.running
+        reports = job.poll()
+        if not finished:
+            return reports, JOB_RUNNING
+        volume = self.job_volume
+        self.job = self.job_volume = None
+        if volume.GetScene() is None:
+            job.close()
+            return reports, JOB_VOLUME_REMOVED
+        self.show_result(volume, self.session.finish(volume, job))
+        return reports, JOB_DONE
+
+    def cancel(self) -> None:
+        """Cancel the Apply: a job's processes are ended now and its files removed; a design in this process stops
+        at its next progress report."""
+        self.cancel_requested = True
+        if self.job is not None:
+            self.job.close()
+        self.job = self.job_volume = None
 
     # Edits -------------------------------------------------------------------------------------------------------
     def _confirm(self) -> bool:
