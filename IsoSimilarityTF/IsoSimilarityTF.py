@@ -29,7 +29,8 @@ from slicer.ScriptedLoadableModule import (
 from slicer.util import VTKObservationMixin
 
 from IsoSimilarityTFLib.options import OPTIONS
-from IsoSimilarityTFLib.session import AUTO_DETAIL, CLASS, TISSUE, Cancelled, DesignSession
+from IsoSimilarityTFLib.panel import JOB_DONE, JOB_VOLUME_REMOVED, PanelModel, PanelView, engine_options, gui_tag
+from IsoSimilarityTFLib.session import AUTO_DETAIL, CLASS, TISSUE, DesignSession
 
 #
 # IsoSimilarityTF
@@ -79,8 +80,12 @@ def _withinRange(option: str, minimum: Optional[float] = None) -> WithinRange:
     return WithinRange(entry.minimum if minimum is None else minimum, entry.maximum)
 
 
-def _choice(option: str, *extra: str) -> Choice:
-    return Choice([*OPTIONS[option].choices, *extra])
+def _choice(option: str, *extra: str, default: Optional[str] = None) -> Choice:
+    """The option's words and the extra ones, the parameter's default first (by default the option's): a combo box
+    being rebuilt selects its first item, and on Slicer 5.8 a connector left connected wrote it (Slicer#7545)."""
+    first = OPTIONS[option].default if default is None else default
+    words = [*OPTIONS[option].choices, *extra]
+    return Choice([first, *(word for word in words if word != first)])
 
 
 def _default(option: str):
@@ -107,8 +112,8 @@ class IsoSimilarityTFParameterNode:
         (the engine's tissues="auto"); n >= 1 is n tissues; a count at or above the design's number of classes is one
         tissue per class (tissues="all", the thesis). Moving it regroups the shown design at once; Apply uses it too.
     colors - tissue colours: "ramp" (intensity-ordered, as Slicer's presets) or "distinct" (a qualitative palette).
-    modality - kind of volume, which chooses the opacity curve: "auto" (detected from the data type and value
-        range; the engine's None), "ct", "mr" or "8bit".
+    modality - kind of volume, a hint to the look: "auto" (detected from the histogram, whatever the units; the
+        engine's None), "ct" (a dense tail shown through what encloses it), "mr" or "8bit" (the outer surface).
     gradientOpacity - "off" (constant, as Slicer's presets) or "auto" (homogeneous insides fade, boundaries stay).
     """
 
@@ -127,7 +132,7 @@ class IsoSimilarityTFParameterNode:
     unconverged: Annotated[str, _choice("unconverged")] = _default("unconverged")
     tissues: Annotated[int, _withinRange("tissues", minimum=AUTO_DETAIL)] = AUTO_DETAIL  # AUTO_DETAIL: "auto"
     colors: Annotated[str, _choice("colors")] = _default("colors")
-    modality: Annotated[str, _choice("modality", "auto")] = "auto"  # "auto": detected (None in the engine)
+    modality: Annotated[str, _choice("modality", "auto", default="auto")] = "auto"  # "auto": detected (engine: None)
     gradientOpacity: Annotated[str, _choice("gradient_opacity")] = _default("gradient_opacity")
 
 
@@ -201,8 +206,9 @@ def choiceLabels() -> dict:
     }
 
 
-class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
-    """The module panel."""
+class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, PanelView):
+    """The module panel: Qt widgets bound to the parameter node and to the panel's state (``self.panel``, a
+    ``IsoSimilarityTFLib.panel.PanelModel``, which follows the scene and asks this widget, its view, to draw)."""
 
     def __init__(self, parent=None) -> None:
         ScriptedLoadableModuleWidget.__init__(self, parent)
@@ -210,26 +216,14 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self.logic = None
         self._parameterNode = None
         self._parameterNodeGuiTag = None
-        self._selectionNode = None
-        # The input follows the scene's active volume until the user picks another volume.
-        self._followActiveVolume = True
-        # The design being computed: a child process (IsoSimilarityTFLib.worker) and the volume it is for.
-        self._job = None
-        self._jobVolume = None
-        # A design being computed in this process (small ones), and whether Cancel was pressed meanwhile.
-        self._inProcess = False
-        self._cancelRequested = False
         self._pollTimer = None
-        # The volume whose design the classes table shows (the table is rebuilt when the input changes).
-        self._shownVolume = None
+        self.panel = None
         # The tree's editing widgets by (level, id) of their row.
         self._rowWidgets = {}
-        # The Detail (parameter node "tissues") the shown design was last grouped with.
-        self._detailShown = None
 
     @property
     def _running(self) -> bool:
-        return self._job is not None or self._inProcess
+        return self.panel is not None and self.panel.running
 
     def setup(self) -> None:
         ScriptedLoadableModuleWidget.setup(self)
@@ -241,6 +235,8 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         uiWidget.setMRMLScene(slicer.mrmlScene)
 
         self.logic = IsoSimilarityTFLogic()
+        self.panel = PanelModel(self.logic, self)
+        self.panel.observe_scene(slicer.mrmlScene)
 
         self._pollTimer = qt.QTimer()
         self._pollTimer.setInterval(POLL_INTERVAL_MS)
@@ -265,13 +261,14 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         header = self.ui.tissuesTreeWidget.header()
         header.setSectionResizeMode(qt.QHeaderView.ResizeToContents)
         header.setStretchLastSection(True)
-        self._showDesign(None)
+        self.show_design(None)
 
         self.initializeParameterNode()
 
     def cleanup(self) -> None:
         self._stopJob()
         self.removeObservers()
+        self.panel.stop()
 
     def enter(self) -> None:
         self.initializeParameterNode()
@@ -294,13 +291,9 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         if self._running:
             self._stopJob()
             self._setRunning(False)
-        self.setParameterNode(None)
-        self.logic.forget()
-        self._shownVolume = None
-        self._showDesign(None)
+        self.setParameterNode(None)  # the panel's state forgets the design (it observes the scene too)
 
     def onSceneEndClose(self, caller, event) -> None:
-        self._followActiveVolume = True
         self._observeSelectionNode()
         if self.parent.isEntered:
             self.initializeParameterNode()
@@ -308,17 +301,15 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
     # Parameter node --------------------------------------------------------------------------------------------------
     def initializeParameterNode(self) -> None:
         self.setParameterNode(self.logic.getParameterNode())
-        activeVolume = self._activeVolume()
-        if activeVolume and (self._followActiveVolume or not self._parameterNode.inputVolume):
-            self._parameterNode.inputVolume = activeVolume
-        self._onParameterNodeModified()
+        self.panel.select_active_volume()
+        self.panel.refresh()
 
     def setParameterNode(self, inputParameterNode: Optional[IsoSimilarityTFParameterNode]) -> None:
         """Connect the panel to a parameter node, once per MRML node.
 
         Re-entering the module gives a new wrapper of the same MRML node: it is not reconnected. On Slicer 5.8
-        ``connectGui`` returns no tag, so ``disconnectGui`` cannot undo it, and each new connection rebuilds the
-        choice combo boxes, which writes their first and last choices into the parameter node (Slicer#7545).
+        ``connectGui`` returns no tag (``gui_tag`` finds it), else ``disconnectGui`` could not undo the connection and
+        each new one, after a scene close, would make the old connectors write their first choice (Slicer#7545).
         """
         if (
             inputParameterNode is not None
@@ -330,14 +321,13 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             if self._parameterNodeGuiTag is not None:
                 self._parameterNode.disconnectGui(self._parameterNodeGuiTag)
             self._parameterNodeGuiTag = None
-            self.removeObserver(self._parameterNode, vtk.vtkCommand.ModifiedEvent, self._onParameterNodeModified)
         self._parameterNode = inputParameterNode
+        self.panel.set_parameters(inputParameterNode)
         if self._parameterNode:
             # Widgets with a "SlicerParameterName" dynamic property in the .ui are bound to the parameter of that name.
-            self._parameterNodeGuiTag = self._parameterNode.connectGui(self.ui)
+            self._parameterNodeGuiTag = gui_tag(self._parameterNode, self._parameterNode.connectGui(self.ui))
             self._labelChoiceComboBoxes()
-            self.addObserver(self._parameterNode, vtk.vtkCommand.ModifiedEvent, self._onParameterNodeModified)
-            self._onParameterNodeModified()
+            self.panel.refresh()
 
     def _labelChoiceComboBoxes(self) -> None:
         """Show readable labels instead of the parameter values the connector put in the combo boxes."""
@@ -359,10 +349,9 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
                     comboBox.setItemText(index, labels[value])
                     comboBox.setItemData(index, value, qt.Qt.ToolTipRole)
 
-    def _onParameterNodeModified(self, caller=None, event=None) -> None:
+    def show_parameters(self) -> None:
+        """The parameter node changed: enable what depends on it."""
         volume = self._parameterNode.inputVolume if self._parameterNode else None
-        if self._running:
-            return
         self.ui.applyButton.enabled = volume is not None
         self.ui.applyButton.toolTip = (
             _("Design a transfer function for the input volume and show it in the 3D view")
@@ -372,48 +361,21 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self.ui.preferenceValueSpinBox.enabled = bool(
             self._parameterNode and self._parameterNode.preference == "number"
         )
-        if volume is not self._shownVolume:
-            self._shownVolume = volume
-            design = self.logic.restore(volume)
-            self._showDesign(design)
-            if design is not None and self.logic.outside_change() is not None:
-                self.ui.statusLabel.text = _(
-                    "The 3D view shows another transfer function than this design (changed in the Volume Rendering "
-                    "module). Editing a class shows the design again, after asking."
-                )
-        if self._parameterNode is not None:
-            self._onDetailChanged()
+
+    def show_outside_change(self, change: str) -> None:
+        self.ui.statusLabel.text = _(
+            "The 3D view shows another transfer function than this design (changed in the Volume Rendering "
+            "module). Editing a class shows the design again, after asking."
+        )
 
     # Active volume ---------------------------------------------------------------------------------------------------
     def _observeSelectionNode(self) -> None:
         appLogic = slicer.app.applicationLogic()
-        selectionNode = appLogic.GetSelectionNode() if appLogic else None
-        if selectionNode is self._selectionNode:
-            return
-        if self._selectionNode is not None:
-            self.removeObserver(self._selectionNode, vtk.vtkCommand.ModifiedEvent, self.onSelectionNodeModified)
-        self._selectionNode = selectionNode
-        if selectionNode is not None:
-            self.addObserver(selectionNode, vtk.vtkCommand.ModifiedEvent, self.onSelectionNodeModified)
-
-    def _activeVolume(self):
-        """The scene's active volume if it is a plain scalar volume (the kind the selector lists), else None."""
-        if self._selectionNode is None or not self._selectionNode.GetActiveVolumeID():
-            return None
-        node = slicer.mrmlScene.GetNodeByID(self._selectionNode.GetActiveVolumeID())
-        return node if node is not None and node.GetClassName() == "vtkMRMLScalarVolumeNode" else None
-
-    def onSelectionNodeModified(self, caller=None, event=None) -> None:
-        if not self._followActiveVolume or self._parameterNode is None or self._running:
-            return
-        activeVolume = self._activeVolume()
-        if activeVolume is not None and activeVolume is not self._parameterNode.inputVolume:
-            self._parameterNode.inputVolume = activeVolume
+        self.panel.observe_selection(appLogic.GetSelectionNode() if appLogic else None)
 
     def onInputVolumeActivated(self, node) -> None:
         """The user picked a volume in the selector: stop following the active volume unless they picked it."""
-        activeVolume = self._activeVolume()
-        self._followActiveVolume = node is None or activeVolume is None or node is activeVolume
+        self.panel.volume_picked(node)
 
     # Apply. A design expected to take less than about a second runs here, on the main thread, repainting and
     # checking Cancel at each progress report (between affinity propagation's iterations too); a longer one runs in a
@@ -423,7 +385,11 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         if self._running or not self._parameterNode or not self._parameterNode.inputVolume:
             return
         volume = self._parameterNode.inputVolume
-        options = self.logic.designOptions(self._parameterNode)
+        options = None
+        with slicer.util.tryWithErrorDisplay(_("Failed to compute the transfer function.")):
+            options = self.logic.designOptions(self._parameterNode)
+        if options is None:
+            return
         from IsoSimilarityTFLib.session import fit_levels
 
         dimensions = volume.GetImageData().GetDimensions() if volume.GetImageData() else (0, 0, 0)
@@ -434,33 +400,32 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         if self.logic.runs_in_process(volume, options):
             self._runInProcess(volume, options)
             return
-        with slicer.util.tryWithErrorDisplay(_("Failed to compute the transfer function."), waitCursor=True):
-            self._job = self.logic.start(volume, options)
-            self._jobVolume = volume
-            self._setRunning(True)
-            self._pollTimer.start()
+        # The progress bar shows while the volume is written for the design process (a large one takes a while).
+        self._setRunning(True)
+        slicer.app.processEvents()
+        try:
+            with slicer.util.tryWithErrorDisplay(_("Failed to compute the transfer function."), waitCursor=True):
+                self.panel.start_job(volume, options)
+                self._pollTimer.start()
+        finally:
+            if self.panel.job is None:  # it failed (and said so)
+                self._setRunning(False)
 
     def _runInProcess(self, volume, options: dict) -> None:
-        self._inProcess = True
-        self._cancelRequested = False
         self._setRunning(True)
 
         def progress(stage: str, fraction: float, message: str) -> None:
             self._showProgress(stage, fraction, message)
             slicer.app.processEvents()  # repaint, and let Cancel be pressed
-            if self._cancelRequested or volume.GetScene() is None:
-                raise Cancelled()
 
         try:
             with slicer.util.tryWithErrorDisplay(_("Failed to compute the transfer function."), waitCursor=True):
-                try:
-                    design = self.logic.run(volume, options, progress=progress)
-                except Cancelled:
+                design = self.panel.run_here(volume, options, progress)
+                if design is None:
                     self.addLog(_("Cancelled."))
-                    return
-                self._showResult(volume, design)
+                else:
+                    self._logResult(volume, design)
         finally:
-            self._inProcess = False
             self._setRunning(False)
 
     def _showProgress(self, stage: str, fraction: float, message: str) -> None:
@@ -468,37 +433,32 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self.ui.progressBar.value = round(low + (high - low) * min(max(fraction, 0.0), 1.0))
         self.ui.progressBar.setFormat(f"{message} (%p%)")
 
-    def _showResult(self, volume, design) -> None:
-        self._shownVolume = volume
-        self._showDesign(design)
+    def _logResult(self, volume, design) -> None:
         self.addLog(self.logic.summaryText(design))
         logging.info(f"IsoSimilarityTF timings for {volume.GetName()}: {self.logic.timingsText(design)}")
 
     def _pollJob(self) -> None:
-        job = self._job
-        if job is None:
+        if self.panel.job is None:
             self._pollTimer.stop()
             return
-        finished = not job.running
-        for report in job.poll():
-            self._showProgress(*report)
-        if not finished:
-            return
-        self._pollTimer.stop()
-        volume = self._jobVolume
-        self._job = self._jobVolume = None
+        volume = self.panel.job_volume
         try:
             with slicer.util.tryWithErrorDisplay(_("Failed to compute the transfer function."), waitCursor=True):
-                if volume.GetScene() is None:
-                    job.close()
+                reports, state = self.panel.poll_job()
+                for report in reports:
+                    self._showProgress(*report)
+                if state == JOB_VOLUME_REMOVED:
                     raise RuntimeError(_("The input volume was removed from the scene."))
-                self._showResult(volume, self.logic.finish(volume, job))
+                if state == JOB_DONE:
+                    self._logResult(volume, self.logic.design)
         finally:
-            self._setRunning(False)
+            if self.panel.job is None:  # done, failed or removed
+                self._pollTimer.stop()
+                self._setRunning(False)
 
     def onCancelButton(self) -> None:
-        if self._inProcess:  # the design stops at its next progress report, which then says so
-            self._cancelRequested = True
+        if self.panel.in_process:  # the design stops at its next progress report, which then says so
+            self.panel.cancel()
             self.ui.cancelButton.enabled = False
             return
         self._stopJob()
@@ -506,14 +466,12 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self.addLog(_("Cancelled."))
 
     def _stopJob(self) -> None:
-        """Kill the design process, if any, and forget it (takes effect at once, at any stage); a design in this
-        process stops at its next progress report."""
-        self._cancelRequested = True
+        """End the design process, if any (at once, at any stage); a design in this process stops at its next
+        progress report."""
         if self._pollTimer is not None:
             self._pollTimer.stop()
-        if self._job is not None:
-            self._job.close()
-        self._job = self._jobVolume = None
+        if self.panel is not None:
+            self.panel.cancel()
 
     def _setRunning(self, running: bool) -> None:
         self.ui.progressBar.value = 0
@@ -529,7 +487,7 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         ):
             widget.enabled = not running
         if not running:
-            self._onParameterNodeModified()
+            self.panel.refresh()
 
     def addLog(self, text: str) -> None:
         """Show a message under the Apply button."""
@@ -537,10 +495,10 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         slicer.app.processEvents()
 
     # Tissue tree ---------------------------------------------------------------------------------------------------
-    def _showDesign(self, design) -> None:
+    def show_design(self, design) -> None:
         """Show a design (or nothing) in the tissue tree, the Detail slider, the similarity picture and the timings."""
-        self._showDetail(design)
-        self._fillTree(design)
+        self._showDetailRange(design)
+        self.show_tree(design)
         self._showSimilarityPicture(design)
         self.ui.timingsLabel.text = self.logic.timingsText(design) if design is not None else ""
         for button in (
@@ -552,27 +510,25 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         ):
             button.enabled = design is not None
 
-    def _showDetail(self, design) -> None:
-        """Set the Detail slider's range to the design's (automatic, 1 tissue ... one per class) and its value to the
-        design's grouping, which the parameter node then holds (so the slider regroups only when the user moves it)."""
+    def _showDetailRange(self, design) -> None:
+        """The Detail slider's range: the design's (automatic, 1 tissue ... one per class), set before the panel's
+        state writes the design's grouping into the parameter node, so the slider never clamps it."""
         slider = self.ui.detailSlider
         slider.enabled = design is not None
         slider.blockSignals(True)
         if design is None:
-            # Any saved value fits: the slider must not clamp the parameter while no design is shown.
+            # Any saved value fits: the slider must not clamp the parameter while no design is shown. No ticks: over
+            # this range (pageStep 1) they would draw as a solid bar.
             slider.setRange(AUTO_DETAIL, int(OPTIONS["tissues"].maximum))
+            slider.setTickPosition(qt.QSlider.NoTicks)
         else:
             slider.setRange(AUTO_DETAIL, self.logic.detail_range()[1])
+            slider.setTickPosition(qt.QSlider.TicksBelow)
         slider.blockSignals(False)
-        if design is not None and self._parameterNode is not None:
-            self._detailShown = self.logic.detail()
-            self._parameterNode.tissues = self._detailShown
-        self._updateDetailLabel()
+        self.show_detail_label()
 
-    def _updateDetailLabel(self) -> None:
-        design = self.logic.design if self._shownVolume is not None else None
-        detail = self._parameterNode.tissues if self._parameterNode else AUTO_DETAIL
-        self.ui.detailValueLabel.text = self.detailText(detail, design)
+    def show_detail_label(self) -> None:
+        self.ui.detailValueLabel.text = self.detailText(self.panel.detail(), self.panel.detail_design())
 
     @staticmethod
     def detailText(detail: int, design) -> str:
@@ -588,25 +544,7 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             return _("One per class: {count} (thesis)").format(count=count)
         return _("1 tissue") if count == 1 else _("{count} tissues").format(count=count)
 
-    def _onDetailChanged(self) -> None:
-        """The parameter node's Detail changed (the slider, a script): regroup the shown design at once."""
-        design = self.logic.design
-        detail = self._parameterNode.tissues
-        if design is None or self._shownVolume is None or detail == self._detailShown:
-            self._updateDetailLabel()
-            return
-        self._detailShown = detail
-        if self._confirmOverwrite():
-            with slicer.util.tryWithErrorDisplay(_("Failed to regroup the classes.")):
-                self.logic.regroup(detail)
-        # The design's own setting: a count past its classes becomes its class count; if the user kept the other
-        # transfer function, the slider goes back to the design's grouping.
-        self._detailShown = self.logic.detail()
-        self._parameterNode.tissues = self._detailShown
-        self._fillTree(design)
-        self._updateDetailLabel()
-
-    def _fillTree(self, design) -> None:
+    def show_tree(self, design) -> None:
         tree = self.ui.tissuesTreeWidget
         tree.clear()  # deletes the items and their widgets
         self._rowWidgets = {}
@@ -620,7 +558,7 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self.ui.tissuesCollapsibleButton.text = _("Tissues ({tissues} tissues, {classes} classes)").format(
             tissues=design.n_tissues, classes=len(design.classes)
         )
-        self._syncRows()
+        self.show_rows()
 
     def rowName(self, row) -> str:
         """The name shown in the tree (numbers from 1, as in the segment names)."""
@@ -696,7 +634,7 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         }
         return item
 
-    def _syncRows(self) -> None:
+    def show_rows(self) -> None:
         """Set the tree's widgets from the logic's design, without sending edits back."""
         design = self.logic.design
         if design is None:
@@ -727,11 +665,8 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             for column in (COLUMN_NAME, COLUMN_VOXELS, COLUMN_RANGE):
                 widgets["item"].setForeground(column, qt.QBrush() if row.shown else brush)
 
-    def _confirmOverwrite(self) -> bool:
-        """Before an edit: if the shown transfer function is no longer the design's, ask before replacing it."""
-        change = self.logic.outside_change()
-        if change is None:
-            return True
+    def confirm_overwrite(self, change: str) -> bool:
+        """Before an edit: the shown transfer function is no longer the design's; ask before replacing it."""
         from IsoSimilarityTFLib import mrml
 
         volumeName = self.logic.volume_node.GetName() if self.logic.volume_node else ""
@@ -749,12 +684,17 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             windowTitle=_("Transfer function changed"),
         )
 
+    def attempt(self, what: str, action) -> None:
+        if what == "regroup":
+            message = _("Failed to regroup the classes.")
+        else:
+            message = _("Failed to update the transfer function.")
+        with slicer.util.tryWithErrorDisplay(message):
+            action()
+
     def _edit(self, edit) -> None:
         """Apply one edit through the logic (which rewrites the transfer function in place) and refresh the panel."""
-        if self._confirmOverwrite():
-            with slicer.util.tryWithErrorDisplay(_("Failed to update the transfer function.")):
-                edit()
-        self._syncRows()
+        self.panel.edit(edit)
 
     def onRowColorChanged(self, level: str, itemId: int, color) -> None:
         self._edit(lambda: self.logic.edit(level, itemId, color=(color.redF(), color.greenF(), color.blueF())))
@@ -897,6 +837,10 @@ class IsoSimilarityTFLogic(ScriptedLoadableModuleLogic, DesignSession):
             raise RuntimeError(_("The PythonSlicer executable was not found: cannot start the computation."))
         return executable
 
+    def temporary_folder(self) -> str:
+        """The temporary folder chosen in Slicer's settings, for the volume the design process reads."""
+        return slicer.app.temporaryPath
+
     @staticmethod
     def defaultExportExtension() -> str:
         """``.vp.json`` where this Slicer can read it (5.10 and later), else the legacy ``.vp`` (Slicer 5.8)."""
@@ -905,29 +849,8 @@ class IsoSimilarityTFLogic(ScriptedLoadableModuleLogic, DesignSession):
     # Running ---------------------------------------------------------------------------------------------------------
     @staticmethod
     def designOptions(parameterNode) -> dict:
-        """The engine's options (``design_transfer_function`` keywords) from the parameter node."""
-        return {
-            "n_bins": int(parameterNode.bins),
-            "levels": int(parameterNode.levels) or None,
-            "crossing": parameterNode.crossing,
-            "normalization": parameterNode.normalization,
-            "preference": (
-                float(parameterNode.preferenceValue)
-                if parameterNode.preference == "number"
-                else parameterNode.preference
-            ),
-            "damping": float(parameterNode.damping),
-            "max_iter": int(parameterNode.maxIterations),
-            "convergence_iter": int(parameterNode.convergenceIterations),
-            "max_classes": int(parameterNode.maxClasses),
-            "background": parameterNode.background,
-            "unconverged": parameterNode.unconverged,
-            # A Detail setting: the session maps it to "auto", a count or "all" once the classes are known.
-            "tissues": int(parameterNode.tissues),
-            "colors": parameterNode.colors,
-            "modality": None if parameterNode.modality == "auto" else parameterNode.modality,
-            "gradient_opacity": parameterNode.gradientOpacity,
-        }
+        """The engine's options (``design_transfer_function`` keywords) from the parameter node, checked."""
+        return engine_options(parameterNode)
 
     # Reports ---------------------------------------------------------------------------------------------------------
     @staticmethod
@@ -995,6 +918,7 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
             self.test_IsoSimilarityTF_tissues,
             self.test_IsoSimilarityTF_run,
             self.test_IsoSimilarityTF_cancel,
+            self.test_IsoSimilarityTF_panel,
             self.test_IsoSimilarityTF_widget,
         ):
             self.setUp()
@@ -1086,6 +1010,11 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
         self._check("cancel")
         self.delayDisplay("Test passed")
 
+    def test_IsoSimilarityTF_panel(self):
+        self.delayDisplay("The panel follows the scene: auto-selected input, two volumes, scene close")
+        self._check("panel")
+        self.delayDisplay("Test passed")
+
     def test_IsoSimilarityTF_widget(self):
         self.delayDisplay("The panel shows the design of the selected volume")
         module = getattr(slicer.modules, "isosimilaritytf", None)
@@ -1099,6 +1028,10 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
         widget.logic.apply(volumeNode, hand_made_design())
         otherVolume = self._addVolume(nested_volume(), SPACING, "Other")
         widget.enter()
+        from IsoSimilarityTFLib import mrml
+
+        # The input selector had selected Nested before its design was applied: the design is not regrouped.
+        self.assertEqual(mrml.design_of_volume(volumeNode).options["tissues"], "all")
         # Re-entering keeps the one GUI connection and the user's choices (Slicer 5.8 reset them, Slicer#7545).
         widget._parameterNode.crossing = "strict"
         widget._parameterNode.background = "lowest"
@@ -1139,7 +1072,7 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
         self.assertEqual(widget.logic.design.options["tissues"], "auto")
         # The input follows the active volume until the user picks another one.
         selectionNode = slicer.app.applicationLogic().GetSelectionNode()
-        widget._followActiveVolume = True
+        widget.panel.follow_active_volume = True
         selectionNode.SetActiveVolumeID(None)
         selectionNode.SetActiveVolumeID(otherVolume.GetID())
         self.assertIs(widget._parameterNode.inputVolume, otherVolume)
@@ -1151,5 +1084,13 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
         self.assertIs(widget._parameterNode.inputVolume, volumeNode)
         widget._parameterNode.crossing = "inclusive"
         widget._parameterNode.background = "largest"
+        # Scene closes reset the parameter node to its defaults and nothing else (on Slicer 5.8 the combo boxes'
+        # old connectors wrote their first choices, audit F2).
+        for _close in range(5):
+            slicer.mrmlScene.Clear(0)
+            widget.enter()
+        self.assertEqual(widget._parameterNode.modality, "auto")
+        self.assertEqual(widget.ui.modalityComboBox.currentText, choiceLabels()["modality"]["auto"])
+        self.assertEqual(widget.ui.tissuesTreeWidget.topLevelItemCount, 0)
         widget.exit()
         self.delayDisplay("Test passed")

@@ -72,6 +72,15 @@ class _ParameterNode(types.SimpleNamespace):
     pass
 
 
+def _connect(widget, module, parameters):
+    """The widget's panel state on stand-in parameters (writes to them send no event: the tests call refresh)."""
+    import vtk
+
+    widget.panel = module.PanelModel(widget.logic, widget)
+    widget._parameterNode = parameters
+    widget.panel.set_parameters(parameters, node=vtk.vtkObject())
+
+
 @pytest.fixture()
 def panel(module, slicer_app):
     """A widget with stand-in widgets, the real logic, a volume with a hand-made design shown."""
@@ -79,26 +88,26 @@ def panel(module, slicer_app):
     widget.ui = mock.MagicMock(name="ui")
     widget.logic = module.IsoSimilarityTFLogic()
     volume = slicer_app.add_volume(nested_volume(), spacing=SPACING, name="Nested")
-    widget._parameterNode = _ParameterNode(inputVolume=volume, tissues=AUTO_DETAIL, preference="median")
+    _connect(widget, module, _ParameterNode(inputVolume=volume, tissues=AUTO_DETAIL, preference="median"))
     widget.logic.apply(volume, hand_made_design())
     return widget, volume
 
 
 def test_showing_a_design_fills_the_tree_and_the_detail(panel):
     widget, volume = panel
-    widget._onParameterNodeModified()  # a new volume for the panel: its design is restored and shown
-    assert widget._shownVolume is volume
+    widget.panel.refresh()  # a new volume for the panel: its design is restored and shown
+    assert widget.panel.shown_volume is volume
     assert sorted(widget._rowWidgets) == [(TISSUE, i) for i in range(4)]  # one tissue per class
-    assert widget._parameterNode.tissues == widget._detailShown == 3
+    assert widget._parameterNode.tissues == widget.panel.detail_shown == 3
     widget.ui.detailSlider.setRange.assert_called_with(AUTO_DETAIL, 3)
     assert widget.ui.detailValueLabel.text == "One per class: 3 (thesis)"
 
 
 def test_the_detail_regroups_and_the_tree_edits_reach_the_transfer_function(panel):
     widget, volume = panel
-    widget._onParameterNodeModified()
+    widget.panel.refresh()
     widget._parameterNode.tissues = 1
-    widget._onParameterNodeModified()
+    widget.panel.refresh()
     design = widget.logic.design
     assert design.n_tissues == 1 and mrml.design_of_volume(volume).n_tissues == 1
     assert sorted(widget._rowWidgets) == [(CLASS, 1), (CLASS, 2), (CLASS, 3), (TISSUE, 0), (TISSUE, 1)]
@@ -127,10 +136,10 @@ def test_the_detail_regroups_and_the_tree_edits_reach_the_transfer_function(pane
 
     # Past the top of the slider (a saved count): one tissue per class, and the slider follows the design.
     widget._parameterNode.tissues = 9
-    widget._onParameterNodeModified()
+    widget.panel.refresh()
     assert design.n_tissues == 3 and widget._parameterNode.tissues == 3
     widget._parameterNode.tissues = AUTO_DETAIL
-    widget._onParameterNodeModified()
+    widget.panel.refresh()
     assert design.options["tissues"] == "auto" and widget.ui.detailValueLabel.text.startswith("Automatic")
 
     widget.onExportSegmentationButton()
@@ -146,7 +155,7 @@ def test_no_design_leaves_the_saved_detail_alone(panel, slicer_app):
     widget, _ = panel
     widget._parameterNode.tissues = 7
     widget._parameterNode.inputVolume = slicer_app.add_volume(nested_volume(), spacing=SPACING, name="Other")
-    widget._onParameterNodeModified()
+    widget.panel.refresh()
     assert widget.logic.design is None and widget._rowWidgets == {}
     assert widget._parameterNode.tissues == 7
     assert widget.ui.detailSlider.enabled is False
@@ -154,7 +163,7 @@ def test_no_design_leaves_the_saved_detail_alone(panel, slicer_app):
 
 def test_apply_in_process_shows_the_design_and_cancel_changes_nothing(panel, slicer_app, module):
     widget, volume = panel
-    widget._onParameterNodeModified()
+    widget.panel.refresh()
     options = {"n_bins": 32, "tissues": 1}
     assert widget.logic.runs_in_process(volume, options)
     widget._runInProcess(volume, options)
@@ -164,10 +173,283 @@ def test_apply_in_process_shows_the_design_and_cancel_changes_nothing(panel, sli
 
     import slicer
 
-    def press_cancel():  # the user presses Cancel while the design runs
-        widget.onCancelButton()
+    pressed = []
+
+    def press_cancel():  # the user presses Cancel once, while the design runs
+        if widget.panel.in_process and not pressed:
+            pressed.append(True)
+            widget.onCancelButton()
 
     slicer.app.processEvents.side_effect = press_cancel
     widget._runInProcess(volume, {"n_bins": 64})
     assert mrml.design_of_volume(volume).to_dict() == stored
-    assert widget.ui.statusLabel.text == "Cancelled." and not widget._running
+    assert pressed and widget.ui.statusLabel.text == "Cancelled." and not widget._running
+
+
+def test_f4_a_design_applied_behind_the_panel_is_not_regrouped(module, slicer_app):
+    """The self-test's order (F4): the selector auto-selects the first volume added (the panel caches it with no
+    design), the design is applied without the panel being told, then the module is entered."""
+    widget = module.IsoSimilarityTFWidget()
+    widget.ui = mock.MagicMock(name="ui")
+    widget.logic = module.IsoSimilarityTFLogic()
+    volume = slicer_app.add_volume(nested_volume(), spacing=SPACING, name="Nested")
+    _connect(widget, module, _ParameterNode(inputVolume=volume, tissues=AUTO_DETAIL, preference="median"))
+    widget.panel.refresh()  # the selector's auto-selection writes inputVolume
+    widget.logic.apply(volume, hand_made_design())
+    other = slicer_app.add_volume(nested_volume(), spacing=SPACING, name="Other")
+    widget.panel.refresh()  # enter()
+    assert mrml.design_of_volume(volume).options["tissues"] != "auto"  # not regrouped behind the panel
+    widget._parameterNode.inputVolume = other
+    widget.panel.refresh()
+    widget._parameterNode.inputVolume = volume
+    widget.panel.refresh()
+    assert sorted(widget._rowWidgets) == [(TISSUE, i) for i in range(4)]
+    assert widget._parameterNode.tissues == 3
+
+
+class _ComboBox:
+    """A QComboBox as Slicer 5.8's combo box connector drives it: ``clear()`` selects no item (-1) and the first
+    ``addItem`` selects item 0 (Qt behaviour, noted at qSlicerDataDialog.cxx:254), each change sent to the connected
+    slots as ``currentIndexChanged``."""
+
+    def __init__(self):
+        self.items, self.currentIndex, self.slots = [], -1, []
+
+    @property
+    def count(self):
+        return len(self.items)
+
+    def _select(self, index):
+        if index != self.currentIndex:
+            self.currentIndex = index
+            for slot in list(self.slots):
+                slot(index)
+
+    def clear(self):
+        self.items = []
+        self._select(-1)
+
+    def addItem(self, text):
+        self.items.append(text)
+        if self.currentIndex == -1:
+            self._select(0)
+
+    def itemText(self, index):
+        return self.items[index]
+
+    def setItemText(self, index, text):
+        self.items[index] = text
+
+    def setItemData(self, *args):
+        pass
+
+
+class _ChoiceConnector:
+    """Slicer v5.8.1 guiConnectors.py:355-399 (QComboBoxToStringableConnector), by index."""
+
+    def __init__(self, widget, choices):
+        self.widget, self.choices, self.callback = widget, choices, None
+        widget.clear()
+        for choice in choices:
+            widget.addItem(str(choice))
+
+    def _changed(self, index):
+        self.callback()
+
+    def onChanged(self, callback):
+        if self.callback is not None:
+            self.widget.slots.remove(self._changed)
+        self.callback = callback
+        if callback is not None:
+            self.widget.slots.append(self._changed)
+
+    def read(self):
+        return self.choices[self.widget.currentIndex]
+
+    def write(self, value):
+        self.widget._select(self.choices.index(value))
+
+
+class _Wrapper58:
+    """A parameter node wrapper shaped as Slicer 5.8.1's (wrapper.py:132-260) for the choice parameters: its
+    ``connectGui`` returns None, so ``disconnectGui(None)`` leaves the connectors connected; values live in the one
+    (singleton) MRML node, shared by every wrapper of it."""
+
+    def __init__(self, node, values, choices, combo_of):
+        object.__setattr__(self, "parameterNode", node)
+        object.__setattr__(self, "_values", values)
+        object.__setattr__(self, "_choices", choices)
+        object.__setattr__(self, "_combo_of", combo_of)
+        object.__setattr__(self, "_parameterGUIs", {})
+        object.__setattr__(self, "_nextParameterGUIsTag", 0)
+
+    def __getattr__(self, name):
+        return self._values[name]
+
+    def __setattr__(self, name, value):
+        self._values[name] = value
+
+    def AddObserver(self, *args):
+        return self.parameterNode.AddObserver(*args)
+
+    def RemoveObserver(self, tag):
+        self.parameterNode.RemoveObserver(tag)
+
+    def connectGui(self, ui):
+        connectors = {name: _ChoiceConnector(self._combo_of(ui, name), c) for name, c in self._choices.items()}
+        tag = self._nextParameterGUIsTag
+        object.__setattr__(self, "_nextParameterGUIsTag", tag + 1)
+        self._parameterGUIs[tag] = connectors
+        for name, connector in connectors.items():
+            connector.write(self._values[name])
+            connector.onChanged(lambda name=name, connector=connector: self.__setattr__(name, connector.read()))
+        return None  # Slicer 5.8.1 wrapper.py:253: no tag
+
+    def disconnectGui(self, tag):
+        for connector in self._parameterGUIs.pop(tag, {}).values():
+            connector.onChanged(None)
+
+
+def test_f2_on_slicer_5_8_closing_the_scene_five_times_changes_no_choice(module, slicer_app):
+    import typing
+
+    import vtk
+
+    hints = typing.get_type_hints(module.IsoSimilarityTFParameterNode, include_extras=True)
+    choices = {name: list(hint.__metadata__[0][0]) for name, hint in hints.items()
+               if hasattr(hint, "__metadata__") and hint.__origin__ is str}  # fmt: skip
+    assert "modality" in choices and "crossing" in choices
+    values = {name: getattr(module.IsoSimilarityTFParameterNode, name) for name in hints if name != "inputVolume"}
+    values["inputVolume"] = None
+    values.update(crossing="strict", modality="mr", colors="distinct")  # the user's choices, or a saved scene's
+    combos = {}
+
+    def combo_of(ui, name):
+        return combos.setdefault(name, _ComboBox())
+
+    widget = module.IsoSimilarityTFWidget()
+    widget.ui = mock.MagicMock(name="ui")
+    for name in choices:
+        setattr(widget.ui, f"{name}ComboBox", combo_of(widget.ui, name))
+    widget.logic = module.IsoSimilarityTFLogic()
+    widget.panel = module.PanelModel(widget.logic, widget)
+    node = vtk.vtkObject()
+    before = dict(values)
+    widget.setParameterNode(_Wrapper58(node, values, choices, combo_of))
+    for _ in range(5):
+        widget.setParameterNode(None)  # onSceneStartClose
+        widget.setParameterNode(_Wrapper58(node, values, choices, combo_of))  # onSceneEndClose / enter()
+    assert {name: values[name] for name in choices} == {name: before[name] for name in choices}
+
+
+def test_f2_every_choice_parameter_defaults_to_its_first_choice(module):
+    """A rebuilt combo box selects item 0 (Qt); a choice defaulting to another word was overwritten on Slicer 5.8."""
+    import typing
+
+    hints = typing.get_type_hints(module.IsoSimilarityTFParameterNode, include_extras=True)
+    choices = {name: list(hint.__metadata__[0][0]) for name, hint in hints.items()
+               if hasattr(hint, "__metadata__") and hint.__origin__ is str}  # fmt: skip
+    assert len(choices) == 8
+    for name, words in choices.items():
+        assert words[0] == getattr(module.IsoSimilarityTFParameterNode, name), name
+        assert len(set(words)) == len(words), name
+
+
+def test_f7_the_detail_slider_has_no_ticks_while_no_design_is_shown(panel, module):
+    widget, _ = panel
+    widget.show_design(None)
+    widget.ui.detailSlider.setTickPosition.assert_called_with(module.qt.QSlider.NoTicks)
+    widget.panel.refresh()  # the design is shown
+    widget.ui.detailSlider.setTickPosition.assert_called_with(module.qt.QSlider.TicksBelow)
+
+
+def test_the_visibility_boxes_are_disabled_in_solo_mode(panel, module):
+    widget, _ = panel
+    module.qt.QCheckBox.side_effect = lambda *args: mock.MagicMock(name="QCheckBox")  # one per row and column
+    widget.panel.refresh()
+    boxes = [w["visible"] for w in widget._rowWidgets.values()]
+    assert len({id(box) for box in boxes}) == len(boxes) == 4 and all(box.enabled for box in boxes)
+    widget.onRowSoloToggled(TISSUE, 2, True)
+    assert not any(box.enabled for box in boxes)
+    widget.onShowAllButton()
+    assert all(box.enabled for box in boxes)
+
+
+# The panel's parameters to the engine's options -------------------------------------------------------------------
+def _defaults(module, **changes):
+    import typing
+
+    cls = module.IsoSimilarityTFParameterNode
+    values = {name: getattr(cls, name, None) for name in typing.get_type_hints(cls)}
+    values.update(changes)
+    return _ParameterNode(**values)
+
+
+def _other_value(option):
+    """A value of the option's entry other than its default: another word, or a number inside the bounds."""
+    from IsoSimilarityTFLib.options import OPTIONS
+
+    entry = OPTIONS[option]
+    if entry.kind == "choice":
+        return next(word for word in reversed(entry.choices) if word != entry.default)
+    default = entry.default if entry.default is not None else entry.minimum
+    step = 1 if entry.kind in ("int", "choice-or-int") else 0.125
+    if isinstance(default, str):  # preference: a word; the other word
+        return next(word for word in entry.choices if word != default)
+    return default + step if entry.maximum is None or default + step <= entry.maximum else default - step
+
+
+def test_the_defaults_of_the_panel_are_the_engines(module):
+    import typing
+
+    from IsoSimilarityTFLib.options import DEFAULT_OPTIONS
+    from IsoSimilarityTFLib.panel import PANEL_OPTIONS
+
+    fields = set(typing.get_type_hints(module.IsoSimilarityTFParameterNode))
+    assert fields - {"inputVolume", "preferenceValue"} == set(PANEL_OPTIONS)  # every parameter reaches the engine
+    options = module.IsoSimilarityTFLogic.designOptions(_defaults(module))
+    assert set(options) == set(PANEL_OPTIONS.values()) == set(DEFAULT_OPTIONS) - {"value_range"}
+    expected = {**{k: DEFAULT_OPTIONS[k] for k in options}, "tissues": AUTO_DETAIL}  # the Detail: automatic
+    assert options == expected
+    assert options["levels"] is None and options["modality"] is None
+
+
+@pytest.mark.parametrize("parameter", sorted(__import__("IsoSimilarityTFLib.panel").panel.PANEL_OPTIONS))
+def test_each_parameter_reaches_its_engine_option_and_only_it(module, parameter):
+    from IsoSimilarityTFLib.panel import PANEL_OPTIONS
+
+    option = PANEL_OPTIONS[parameter]
+    base = module.IsoSimilarityTFLogic.designOptions(_defaults(module))
+    value = 2 if parameter == "tissues" else _other_value(option)
+    options = module.IsoSimilarityTFLogic.designOptions(_defaults(module, **{parameter: value}))
+    assert options[option] == value and type(options[option]) is type(value)
+    assert {k: v for k, v in options.items() if k != option} == {k: v for k, v in base.items() if k != option}
+
+
+def test_the_panel_words_for_none_and_a_number(module):
+    design_options = module.IsoSimilarityTFLogic.designOptions
+    assert design_options(_defaults(module, levels=3))["levels"] == 3
+    assert design_options(_defaults(module, modality="mr"))["modality"] == "mr"
+    assert design_options(_defaults(module, preference="number", preferenceValue=-2.5))["preference"] == -2.5
+    assert design_options(_defaults(module, preference="minimum", preferenceValue=-2.5))["preference"] == "minimum"
+    assert design_options(_defaults(module, tissues=9))["tissues"] == 9
+
+
+@pytest.mark.parametrize(("parameter", "value"), [("bins", 1), ("damping", 1.5), ("crossing", "both"), ("tissues", -1)])
+def test_a_bad_parameter_is_refused_before_anything_runs(module, parameter, value):
+    from IsoSimilarityTFLib import OptionError
+
+    with pytest.raises(OptionError):
+        module.IsoSimilarityTFLogic.designOptions(_defaults(module, **{parameter: value}))
+
+
+def test_apply_designs_with_the_panels_options(panel, module):
+    widget, volume = panel
+    widget._parameterNode = _defaults(module, inputVolume=volume, bins=32, levels=2, modality="mr")
+    widget.panel.set_parameters(widget._parameterNode, node=__import__("vtk").vtkObject())
+    widget._pollTimer = mock.MagicMock(name="timer")
+    widget.onApplyButton()
+    design = widget.logic.design
+    assert (design.n_bins, design.options["levels"], design.options["modality"]) == (32, 2, "mr")
+    assert design.options["tissues"] == "auto" and widget.panel.shown_volume is volume and not widget._running
+    assert mrml.design_of_volume(volume).to_dict() == design.to_dict()

@@ -228,6 +228,24 @@ def test_synchronize_with_volumes_and_shift_are_noticed(slicer_app, phantom, pha
     assert mrml.modified_outside(volume)
 
 
+def shift_color_of_point(node, index):
+    """A colour-only edit of one point, as the Volume Rendering module's colour editor makes (opacity untouched)."""
+    color = node.GetVolumeProperty().GetRGBTransferFunction()
+    values = [0.0] * 6
+    color.GetNodeValue(index, values)
+    values[1:4] = [1.0 - v for v in values[1:4]]
+    color.SetNodeValue(index, values)
+
+
+def test_a_colour_only_change_is_noticed(slicer_app, phantom, phantom_design):
+    volume = add_phantom(slicer_app, phantom)
+    node = apply_design(volume, phantom_design, slicer_app.volume_rendering_logic)
+    opacity_before = tf_at(node, phantom_design.edges)[1]
+    shift_color_of_point(node, node.GetVolumeProperty().GetRGBTransferFunction().GetSize() // 2)
+    np.testing.assert_array_equal(tf_at(node, phantom_design.edges)[1], opacity_before)
+    assert mrml.outside_change(volume) == mrml.CHANGE_EDITED and mrml.modified_outside(volume)
+
+
 def test_another_property_node_shown_is_noticed_and_the_design_can_be_shown_again(slicer_app, phantom, phantom_design):
     volume = add_phantom(slicer_app, phantom)
     ours = apply_design(volume, phantom_design, slicer_app.volume_rendering_logic)
@@ -235,7 +253,7 @@ def test_another_property_node_shown_is_noticed_and_the_design_can_be_shown_agai
     other = slicer_app.scene.AddNewNodeByClass("vtkMRMLVolumePropertyNode", "Mine")
     display.SetAndObserveVolumePropertyNodeID(other.GetID())
     assert mrml.displayed_property_node(volume) is other
-    assert mrml.outside_change(volume) == mrml.CHANGE_OTHER_NODE
+    assert mrml.outside_change(volume) == mrml.CHANGE_OTHER_NODE and mrml.modified_outside(volume)
     assert mrml.update_design(volume, phantom_design, slicer_app.volume_rendering_logic) is ours
     assert display.GetVolumePropertyNode() is ours and other in property_nodes(slicer_app.scene)
 

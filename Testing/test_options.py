@@ -70,3 +70,22 @@ def test_cli_applies_the_table_checks(capsys):
     status = cli.main(["phantom", "-o", "out", "--damping", "1.5"])
     assert status == cli.EXIT_USAGE
     assert "--damping: must be a number from 0.5 to 0.99; got 1.5" in capsys.readouterr().err
+
+
+def test_the_options_table_is_a_leaf_whose_words_every_module_uses():
+    """options.py imports no module of the library but errors (no import cycle through it), and the modules that
+    check a word list or a bound use the table's own."""
+    import ast
+    from pathlib import Path
+
+    from IsoSimilarityTFLib import classes, clustering, look, memory, options, similarity
+
+    tree = ast.parse(Path(options.__file__).read_text(encoding="utf-8"))
+    relative = {node.module for node in ast.walk(tree) if isinstance(node, ast.ImportFrom) and node.level}
+    assert relative == {"errors"}
+    assert classes.BACKGROUND_RULES is options.BACKGROUND_RULES
+    assert clustering.PREFERENCES is options.PREFERENCES
+    assert look.KINDS is options.KINDS and look.COLOR_SCHEMES is options.COLOR_SCHEMES
+    assert look.GRADIENT_OPACITY is options.GRADIENT_OPACITY and memory.MAX_BINS is options.MAX_BINS
+    assert similarity.CROSSINGS is options.CROSSINGS and similarity.NORMALIZATIONS is options.NORMALIZATIONS
+    assert options.OPTIONS["crossing"].choices is options.CROSSINGS

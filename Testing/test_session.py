@@ -101,3 +101,25 @@ def test_the_session_decides_from_the_volume_node(slicer_app):
     small = slicer_app.add_volume(np.zeros((8, 9, 10), dtype=np.float32), name="small")
     assert session.runs_in_process(small, {})
     assert not session.runs_in_process(small, {"n_bins": 4096})
+
+
+def test_the_job_folder_is_under_the_sessions_temporary_folder(slicer_app, tmp_path):
+    """In Slicer, slicer.app.temporaryPath (the folder chosen in the settings), not the system's (audit F6)."""
+    import os
+
+    from IsoSimilarityTFLib.selftest import SPACING, nested_volume
+
+    class Session(DesignSession):
+        def temporary_folder(self):
+            return str(tmp_path / "slicer-temporary")
+
+    session = Session(slicer_app.volume_rendering_logic)
+    volume = slicer_app.add_volume(nested_volume(), spacing=SPACING, name="Nested")
+    job = session.start(volume, {"n_bins": 16})
+    try:
+        assert os.path.dirname(job.folder) == str(tmp_path / "slicer-temporary")
+        job.wait(timeout=120)
+        assert session.finish(volume, job).n_bins == 16
+    finally:
+        job.close()
+    assert os.listdir(tmp_path / "slicer-temporary") == []

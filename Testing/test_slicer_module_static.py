@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from IsoSimilarityTFLib.options import OPTIONS
+from IsoSimilarityTFLib.panel import PANEL_OPTIONS
 
 ROOT = Path(__file__).resolve().parents[1]
 MODULE_DIR = ROOT / "IsoSimilarityTF"
@@ -37,24 +38,9 @@ BINDABLE_WIDGETS = {
 }
 # Choice parameters that offer more than the engine option's words ("number": the preference is preferenceValue).
 EXTRA_CHOICES = {"preference": {"number"}, "modality": {"auto"}}
-# Parameter node field -> engine option whose table entry gives its range or choices and its default.
-ENGINE_OPTIONS = {
-    "bins": "n_bins",
-    "levels": "levels",
-    "crossing": "crossing",
-    "normalization": "normalization",
-    "preference": "preference",
-    "damping": "damping",
-    "maxIterations": "max_iter",
-    "convergenceIterations": "convergence_iter",
-    "maxClasses": "max_classes",
-    "background": "background",
-    "unconverged": "unconverged",
-    "tissues": "tissues",
-    "colors": "colors",
-    "modality": "modality",
-    "gradientOpacity": "gradient_opacity",
-}
+# Parameter node field -> engine option whose table entry gives its range or choices and its default (the panel's own
+# mapping, which test_module_widget.py checks option by option).
+ENGINE_OPTIONS = PANEL_OPTIONS
 # Fields whose default stands for the engine option's default in the field's own type: levels 0 is None (all levels),
 # tissues AUTO_DETAIL (0) is "auto", modality "auto" is None (detected).
 SPECIAL_DEFAULTS = {"levels": "0", "tissues": "AUTO_DETAIL", "modality": "'auto'"}

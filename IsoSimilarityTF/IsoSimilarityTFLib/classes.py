@@ -5,7 +5,7 @@ from typing import Optional
 
 import numpy as np
 
-BACKGROUND_RULES = ("largest", "lowest", "none")
+from .options import BACKGROUND_RULES
 
 # Kelly's colours of maximum contrast (without white and black), so neighbouring classes stay distinguishable.
 PALETTE: tuple[tuple[float, float, float], ...] = tuple(

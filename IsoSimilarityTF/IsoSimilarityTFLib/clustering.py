@@ -8,10 +8,8 @@ import numpy as np
 
 from .affinity_propagation import IterationCallback, affinity_propagation
 from .errors import ClusteringError
+from .options import PREFERENCES
 
-PREFERENCES = ("median", "minimum")
-# What the design does when affinity propagation does not converge (see design_transfer_function).
-UNCONVERGED_RULES = ("raise-damping", "error", "keep")
 # Frey & Dueck's remedy for oscillating messages: more damping, tried in turn when the requested damping fails.
 # Messages then move (1 - damping) of the way per iteration, so the iteration limits grow by the same factor;
 # otherwise a slow run of unchanged exemplars passes for convergence.

@@ -40,11 +40,8 @@ from typing import Callable, Optional
 import numpy as np
 
 from .classes import PALETTE, IsovalueClass
+from .options import COLOR_SCHEMES, GRADIENT_OPACITY, KINDS  # noqa: F401 (GRADIENT_OPACITY: still importable here)
 from .visibility import Preview, enclosure, first_met, visibility_histogram
-
-KINDS = ("ct", "mr", "8bit")
-COLOR_SCHEMES = ("ramp", "distinct")
-GRADIENT_OPACITY = ("off", "auto")
 
 # Tissue colour ramp, low to high intensity: dark red, tan, ivory, white (our own anchors, in 0..1).
 RAMP = (

@@ -9,7 +9,7 @@ from typing import Optional
 
 from .cells import GATHERED_CELLS, octree_levels
 from .errors import InsufficientMemoryError
-from .quantize import MAX_BINS
+from .options import MAX_BINS
 
 # Bytes per voxel of the quantized volume, per byte of bin index (not held for a volume streamed from a dask array).
 # The unit cells are never held whole, nor are the octree levels above them: a level of more than

@@ -238,6 +238,12 @@ def update_property_node(property_node, design: TransferFunctionDesign) -> None:
         property_node.SetAttribute(LEGACY_DESIGN_ATTRIBUTE, design.to_json())
 
 
+def restyle_property_node(property_node, design: TransferFunctionDesign) -> None:
+    """Give the node the design's shading, lighting, interpolation and gradient opacity (a Volume Rendering preset
+    copied into it with ``CopyContent`` replaced them; edits rewrite only the colour and scalar opacity)."""
+    configure_volume_property(property_node.GetVolumeProperty(), design.unit_distance, design.gradient_ramp_top)
+
+
 def _write(volume_node, design: TransferFunctionDesign, volume_rendering_logic, *, first: bool):
     scene = volume_node.GetScene() if volume_node is not None else None
     if scene is None:
@@ -248,7 +254,7 @@ def _write(volume_node, design: TransferFunctionDesign, volume_rendering_logic, 
         display_node = _add_display_node(volume_node, volume_rendering_logic, property_node)
         first = True
     if first:
-        configure_volume_property(property_node.GetVolumeProperty(), design.unit_distance, design.gradient_ramp_top)
+        restyle_property_node(property_node, design)
     _store(text_node, design)
     update_property_node(property_node, design)
     low, high = volume_node.GetImageData().GetScalarRange()

@@ -11,12 +11,20 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
-from .classes import BACKGROUND_RULES
-from .clustering import PREFERENCES, UNCONVERGED_RULES
 from .errors import OptionError
-from .look import COLOR_SCHEMES, GRADIENT_OPACITY, KINDS
-from .quantize import MAX_BINS
-from .similarity import CROSSINGS, NORMALIZATIONS
+
+# Every word list and bound of the options. The modules that use them import them from here, and this module imports
+# none of them: the table is a leaf of the library, read by every front end without importing the engine.
+CROSSINGS = ("inclusive", "strict")
+NORMALIZATIONS = ("thesis", "ma-entezari")
+PREFERENCES = ("median", "minimum")
+#: What the design does when affinity propagation does not converge (see design_transfer_function).
+UNCONVERGED_RULES = ("raise-damping", "error", "keep")
+BACKGROUND_RULES = ("largest", "lowest", "none")
+KINDS = ("ct", "mr", "8bit")
+COLOR_SCHEMES = ("ramp", "distinct")
+GRADIENT_OPACITY = ("off", "auto")
+MAX_BINS = 4096
 
 
 @dataclass(frozen=True)

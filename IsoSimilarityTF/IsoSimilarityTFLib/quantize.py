@@ -5,7 +5,6 @@ from typing import Optional
 
 import numpy as np
 
-MAX_BINS = 4096
 # Voxels converted to float64 at a time: bounds the temporary memory of float volumes to ~64 MB.
 _SLAB_VOXELS = 1 << 23
 # Integer volumes whose value span is at most this many values are quantized through a lookup table.

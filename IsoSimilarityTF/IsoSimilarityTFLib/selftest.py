@@ -17,6 +17,7 @@ import numpy as np
 from . import mrml
 from .classes import build_classes
 from .design import STAGES, TransferFunctionDesign
+from .panel import PanelModel, PanelView
 from .session import AUTO_DETAIL, CLASS, TISSUE
 from .tissues import tissue_hierarchy
 from .transfer_function import read_vp, read_vp_json
@@ -367,6 +368,137 @@ def check_cancel(new_session, add_volume: AddVolume) -> None:
     _case.assertEqual(scene.GetNumberOfNodes(), nodes)
 
 
+# The panel's state ----------------------------------------------------------------------------------------------
+def singleton_parameter_node(scene, tag: str):
+    """The scene's ``vtkMRMLScriptedModuleNode`` singleton of ``tag``, made as ScriptedLoadableModuleLogic makes a
+    module's parameter node (Slicer v5.8.1 ScriptedLoadableModule.py:310-363)."""
+    node = scene.GetSingletonNode(tag, "vtkMRMLScriptedModuleNode")
+    if node is None:
+        node = scene.CreateNodeByClass("vtkMRMLScriptedModuleNode")
+        node.UnRegister(None)  # created with a reference for the caller: the Python object owns it
+        node.SetSingletonTag(tag)
+        node.SetAttribute("ModuleName", tag)
+        node.SetName(scene.GenerateUniqueName(tag))
+        node = scene.AddNode(node)
+    return node
+
+
+class NodeParameters:
+    """The two parameters the panel's state reads, kept in an MRML node as Slicer's parameter node wrapper keeps them
+    (serializers.py at v5.8.1: a node as a reference named after the parameter, :405-409; an int as its text,
+    :258-261; a missing value read as its default, wrapper.py:43-46), so that writes send the node's ModifiedEvent."""
+
+    def __init__(self, node):
+        self.parameterNode = node
+
+    @property
+    def inputVolume(self):
+        return self.parameterNode.GetNodeReference("inputVolume")
+
+    @inputVolume.setter
+    def inputVolume(self, volume):
+        self.parameterNode.SetParameter("inputVolume", "")
+        self.parameterNode.SetNodeReferenceID("inputVolume", volume.GetID() if volume is not None else None)
+
+    @property
+    def tissues(self) -> int:
+        text = self.parameterNode.GetParameter("tissues")
+        return int(text) if text else AUTO_DETAIL
+
+    @tissues.setter
+    def tissues(self, value: int) -> None:
+        self.parameterNode.SetParameter("tissues", str(int(value)))
+
+
+class RecordingView(PanelView):
+    """The panel's drawing, recorded; answers the question before overwriting an outside change with ``answer``."""
+
+    def __init__(self, answer: bool = True) -> None:
+        self.designs, self.changes, self.asked, self.answer = [], [], [], answer
+
+    def show_design(self, design) -> None:
+        self.designs.append(design)
+
+    def show_outside_change(self, change: str) -> None:
+        self.changes.append(change)
+
+    def confirm_overwrite(self, change: str) -> bool:
+        self.asked.append(change)
+        return self.answer
+
+    @property
+    def shown(self):
+        return self.designs[-1] if self.designs else None
+
+
+def check_panel(new_session, add_volume: AddVolume) -> None:
+    """The panel's state on the scene's own events: the input selector auto-selects the first volume added (with no
+    design yet), a design applied behind the panel is not regrouped (audit F4), two volumes keep their own grouping,
+    and a scene close shows nothing while the parameter node survives."""
+    session = new_session()
+    scene = session.volume_rendering_logic().GetMRMLScene()
+    view = RecordingView()
+    model = PanelModel(session, view)
+    model.observe_scene(scene)
+    parameter_node = singleton_parameter_node(scene, "IsoSimilarityTFSelfTest")
+    model.set_parameters(NodeParameters(parameter_node))
+    parameters = model.parameters
+
+    from vtkmodules.util.misc import calldata_type
+    from vtkmodules.util.vtkConstants import VTK_OBJECT
+
+    @calldata_type(VTK_OBJECT)
+    def select_first_volume(caller, event, node):
+        # What the selector (a qMRMLNodeComboBox, noneEnabled false) does: "QMRMLCombobox selects the first instance
+        # of the specified node type" (Slicer v5.8.1 qSlicerSegmentationsModuleWidget.cxx:80-81). Whether it does so
+        # at once or after a batch of scene changes, and during an import, is not known here: this check adds its
+        # volumes one by one, outside any import.
+        if parameters.inputVolume is None and node.GetClassName() == "vtkMRMLScalarVolumeNode":
+            parameters.inputVolume = node
+
+    selecting = scene.AddObserver(scene.NodeAddedEvent, select_first_volume)
+    try:
+        volume = add_volume(nested_volume(), SPACING, "Nested")
+        _case.assertIs(model.shown_volume, volume)
+        _case.assertIsNone(view.shown)
+        session.apply(volume, hand_made_design())  # the logic, the panel not told
+        other = add_volume(nested_volume(), SPACING, "Other")
+        model.refresh()  # the module is entered
+        _case.assertEqual(mrml.design_of_volume(volume).options["tissues"], "all")
+        parameters.inputVolume = other
+        _case.assertIsNone(view.shown)
+        _case.assertIsNone(model.detail_shown)
+        parameters.inputVolume = volume
+        _case.assertEqual((len(view.shown.tissues), parameters.tissues, model.detail_shown), (4, 3, 3))
+        # Two volumes, each with its own grouping.
+        parameters.inputVolume = other
+        model.show_result(other, session.run(other, {"n_bins": 32}))
+        parameters.tissues = 1
+        _case.assertIn(mrml.design_of_volume(other).options["tissues"], (1, "all"))
+        parameters.inputVolume = volume
+        _case.assertEqual((len(view.shown.tissues), parameters.tissues), (4, 3))
+        parameters.inputVolume = other
+        _case.assertEqual(parameters.tissues, model.detail_shown)
+        _case.assertNotEqual(parameters.tissues, 3)
+        # A saved Detail is left alone while no design is shown.
+        parameters.inputVolume = None
+        parameters.tissues = 7
+        parameters.inputVolume = add_volume(nested_volume(), SPACING, "Third")
+        _case.assertEqual((parameters.tissues, model.detail_shown), (7, None))
+        # Closing the scene: nothing shown; the singleton parameter node is kept (reset) and still followed.
+        scene.Clear(0)
+        _case.assertIs(scene.GetSingletonNode("IsoSimilarityTFSelfTest", "vtkMRMLScriptedModuleNode"), parameter_node)
+        _case.assertIsNone(parameters.inputVolume)
+        _case.assertIsNone(view.shown)
+        _case.assertIsNone(session.design)
+        last = add_volume(nested_volume(), SPACING, "Last")  # selected again by the selector
+        _case.assertIs(model.shown_volume, last)
+    finally:
+        scene.RemoveObserver(selecting)
+        model.stop()
+        scene.RemoveNode(parameter_node)
+
+
 #: Every check, in the order the module's Test class runs them.
 CHECKS = {
     "edit_and_export": check_edit_and_export,
@@ -376,4 +508,5 @@ CHECKS = {
     "tissues": check_tissues,
     "run": check_run,
     "cancel": check_cancel,
+    "panel": check_panel,
 }

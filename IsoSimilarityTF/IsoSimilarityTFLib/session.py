@@ -246,6 +246,10 @@ class DesignSession:
         """The Python that runs :meth:`start`'s child process (None: this process's ``sys.executable``)."""
         return None
 
+    def temporary_folder(self) -> Optional[str]:
+        """Where :meth:`start` writes the volume for its child process (None: the system's temporary folder)."""
+        return None
+
     # Designing -----------------------------------------------------------------------------------------------------
     def run(self, volume_node, options: Optional[dict] = None, progress=None) -> TransferFunctionDesign:
         """Design in this process and show the design; raising from ``progress`` cancels (nothing changes then).
@@ -273,7 +277,9 @@ class DesignSession:
         values, spacing = volume_values(volume_node)
         options, _ = fit_levels(values.shape, options or {})
         options, detail = _engine_grouping(options)
-        job = DesignProcess(values, spacing, options, python=self.python_executable())
+        job = DesignProcess(
+            values, spacing, options, python=self.python_executable(), temporary_folder=self.temporary_folder()
+        )
         job.detail = detail  # what finish() regroups the design to (None: the engine's grouping)
         return job
 
@@ -341,6 +347,12 @@ class DesignSession:
         if self.volume_node is None or self.volume_node.GetScene() is None:
             raise RuntimeError("The volume of this design is no longer in the scene.")
         self.property_node = mrml.update_design(self.volume_node, self.current_design(), self.volume_rendering_logic())
+
+    def restyle(self) -> None:
+        """Give the design's property node the design's shading and gradient opacity again (see
+        :func:`.mrml.restyle_property_node`); the next edit writes its colours and opacities."""
+        if self.property_node is not None:
+            mrml.restyle_property_node(self.property_node, self.current_design())
 
     def set_class_color(self, class_id: int, color) -> None:
         self.current_design().set_class(class_id, color=color)

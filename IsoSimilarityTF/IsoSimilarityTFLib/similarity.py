@@ -15,10 +15,8 @@ import numpy as np
 from .cells import GATHERED_CELLS, OctreeBuilder, Shape3, complete_rows, octree_levels, unit_cell_slabs
 from .chunked import SlabTap, is_dask_array, voxel_slabs
 from .memory import check_memory
+from .options import CROSSINGS, NORMALIZATIONS
 from .quantize import checked_n_bins
-
-CROSSINGS = ("inclusive", "strict")
-NORMALIZATIONS = ("thesis", "ma-entezari")
 
 # Unit cells per slab, and (min, max) pairs counted per np.bincount call: bincount first converts its input to a
 # 64-bit index, which must stay in the core's cache (2 MB of 256K cells).

@@ -10,18 +10,25 @@ the application while Slicer stays responsive, and Cancel kills it at once, at a
 own long computations (command-line modules run as processes and Cancel terminates them).
 
 The parent (:class:`DesignProcess`) writes the voxels (``.npy``), the spacing and the options into a temporary
-folder and starts ``python -m IsoSimilarityTFLib.worker FOLDER``; the child (:func:`main`) runs
+folder and starts the child, which imports this library from the parent's folder first; the child (:func:`main`) runs
 :func:`~.design.design_transfer_function`, appends each progress report to ``progress.jsonl`` and writes the design
 (``design.json``) and its similarity matrix (``similarity.npy``), or ``error.json``. Nothing here needs Qt: the Slicer
 module polls :meth:`DesignProcess.poll` from a ``qt.QTimer``; scripts and tests can simply wait.
+
+Stopping every process of the job. In Slicer the child's executable, ``PythonSlicer``, is CTKAppLauncher: it starts
+``python-real`` as its own child and waits for it, and killing it leaves that child running. So the job runs in its
+own process group (POSIX), which Cancel kills whole (``taskkill /T`` on Windows), and the child also ends itself
+within :data:`WATCH_INTERVAL_S` when the ``cancel`` file appears, its folder is removed or the parent is gone.
 """
 
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from typing import Optional
 
@@ -37,6 +44,13 @@ DESIGN_FILE = "design.json"
 SIMILARITY_FILE = "similarity.npy"
 ERROR_FILE = "error.json"
 LOG_FILE = "log.txt"
+CANCEL_FILE = "cancel"
+#: How often the child checks whether it should end (seconds).
+WATCH_INTERVAL_S = 0.1
+
+# The child's first lines: this library from the parent's folder, ahead of any other copy on the path (a launcher
+# such as CTKAppLauncher puts its own paths before the inherited PYTHONPATH).
+_BOOTSTRAP = "import sys; sys.path.insert(0, sys.argv[1]); from IsoSimilarityTFLib.worker import main; sys.exit(main())"
 
 # Errors the child reports by name and the parent raises again with the same type.
 _ERROR_TYPES = {
@@ -60,8 +74,9 @@ class DesignProcess:
         spacing: voxel spacing in mm, or None.
         options: :func:`~.design.design_transfer_function` keywords (JSON-serializable values).
         python: the Python executable of the child: ``PythonSlicer`` in Slicer; default ``sys.executable``.
-        env: environment of the child (default: this process's); the folder holding ``IsoSimilarityTFLib`` is put
-            first on its ``PYTHONPATH``.
+        env: environment of the child (default: this process's).
+        temporary_folder: where the job's folder is made (in Slicer, ``slicer.app.temporaryPath``); default the
+            system's.
 
     Use :meth:`poll` until :attr:`running` is False, then :meth:`result`; :meth:`cancel` stops it; :meth:`close`
     (or the ``with`` statement) removes the temporary folder.
@@ -75,30 +90,36 @@ class DesignProcess:
         *,
         python: Optional[str] = None,
         env: Optional[dict] = None,
+        temporary_folder: Optional[str] = None,
     ) -> None:
-        self.folder = tempfile.mkdtemp(prefix="IsoSimilarityTF-")
+        if temporary_folder:
+            os.makedirs(temporary_folder, exist_ok=True)
+        self.folder = tempfile.mkdtemp(prefix="IsoSimilarityTF-", dir=temporary_folder or None)
         self.cancelled = False
         self._progress_offset = 0
         self._process = None
         try:
             np.save(os.path.join(self.folder, VALUES_FILE), np.ascontiguousarray(values))
-            request = {"spacing": None if spacing is None else [float(s) for s in spacing], "options": options or {}}
+            request = {
+                "spacing": None if spacing is None else [float(s) for s in spacing],
+                "options": options or {},
+                "parent": os.getpid(),
+            }
             with open(os.path.join(self.folder, REQUEST_FILE), "w", encoding="utf-8") as file:
                 json.dump(request, file)
-            environment = dict(os.environ if env is None else env)
             package_parent = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-            environment["PYTHONPATH"] = os.pathsep.join(
-                p for p in (package_parent, environment.get("PYTHONPATH", "")) if p
-            )
-            flags = getattr(subprocess, "CREATE_NO_WINDOW", 0) if os.name == "nt" else 0
+            if os.name == "nt":
+                group = {"creationflags": subprocess.CREATE_NO_WINDOW}
+            else:
+                group = {"start_new_session": True}  # a process group of its own, killed whole by cancel()
             with open(os.path.join(self.folder, LOG_FILE), "wb") as log:
                 self._process = subprocess.Popen(
-                    [python or sys.executable, "-m", "IsoSimilarityTFLib.worker", self.folder],
+                    [python or sys.executable, "-c", _BOOTSTRAP, package_parent, self.folder],
                     stdin=subprocess.DEVNULL,
                     stdout=log,
                     stderr=subprocess.STDOUT,
-                    env=environment,
-                    creationflags=flags,
+                    env=dict(os.environ if env is None else env),
+                    **group,
                 )
         except BaseException:
             self.close()
@@ -145,12 +166,32 @@ class DesignProcess:
             time.sleep(0.1)
 
     def cancel(self) -> None:
-        """Stop the computation now (the child is killed); :meth:`result` then raises."""
+        """Stop the computation now (every process of the job is killed); :meth:`result` then raises."""
         self.cancelled = True
+        try:  # ends the child even if a process between it and us is killed alone
+            open(os.path.join(self.folder, CANCEL_FILE), "wb").close()
+        except OSError:
+            pass
         if self.running:
-            self._process.kill()
+            self._kill_group()
         if self._process is not None:
             self._process.wait()
+
+    def _kill_group(self) -> None:
+        if os.name == "nt":
+            subprocess.run(
+                ["taskkill", "/T", "/F", "/PID", str(self._process.pid)],
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+                creationflags=subprocess.CREATE_NO_WINDOW,
+            )
+        else:
+            try:
+                os.killpg(self._process.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+        if self.running:
+            self._process.kill()
 
     def result(self) -> TransferFunctionDesign:
         """The design, with its similarity matrix, once the child has finished.
@@ -206,14 +247,35 @@ def _write_json(path: str, data) -> None:
     os.replace(path + ".part", path)
 
 
+def _parent_alive(pid: Optional[int]) -> bool:
+    if pid is None or os.name == "nt":  # on Windows os.kill would terminate it: the folder check remains
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        pass
+    return True
+
+
+def _watch(folder: str, parent: Optional[int]) -> None:
+    """The child's watchdog thread: end the process when it is cancelled, its folder removed or its parent gone."""
+    while True:
+        time.sleep(WATCH_INTERVAL_S)
+        if os.path.exists(os.path.join(folder, CANCEL_FILE)) or not os.path.isdir(folder) or not _parent_alive(parent):
+            os._exit(3)
+
+
 def main(argv=None) -> int:
-    """The child: ``python -m IsoSimilarityTFLib.worker FOLDER``."""
+    """The child: ``python -c _BOOTSTRAP LIBRARY_PARENT FOLDER`` (or ``python -m IsoSimilarityTFLib.worker FOLDER``)."""
     from .design import design_transfer_function
 
     argv = sys.argv[1:] if argv is None else argv
-    folder = argv[0]
+    folder = argv[-1]
     with open(os.path.join(folder, REQUEST_FILE), encoding="utf-8") as file:
         request = json.load(file)
+    threading.Thread(target=_watch, args=(folder, request.get("parent")), daemon=True).start()
     values = np.load(os.path.join(folder, VALUES_FILE), mmap_mode="r")
     with open(os.path.join(folder, PROGRESS_FILE), "a", encoding="utf-8") as progress_file:
 

@@ -1,0 +1,311 @@
+"""The panel's state (IsoSimilarityTFLib.panel) on a real headless scene (slicer-core), with the events in Slicer's
+own order: the real ``vtkMRMLScene.Import`` of a saved scene, the real singleton parameter node, the real Volume
+Rendering logic's presets. The self-test check ``panel`` (test_module_selftest.py) covers the selector's
+auto-selection (F4), two volumes and ``Clear``.
+
+What stands in for Slicer's Python: the parameter node wrapper (only the two parameters the state reads, stored in the
+real MRML node as the wrapper stores them: selftest.NodeParameters).
+"""
+
+import numpy as np
+import pytest
+
+from IsoSimilarityTFLib import mrml
+from IsoSimilarityTFLib.panel import JOB_DONE, JOB_RUNNING, JOB_VOLUME_REMOVED, PanelModel, gui_tag
+from IsoSimilarityTFLib.selftest import (
+    SPACING,
+    NodeParameters,
+    RecordingView,
+    hand_made_design,
+    nested_volume,
+    singleton_parameter_node,
+)
+from IsoSimilarityTFLib.session import TISSUE, DesignSession
+
+MODULE_NAME = "IsoSimilarityTF"
+
+
+def open_panel(app, view=None):
+    """The panel opened once in a session: it observes the scene and the parameter node from then on (until
+    ``stop``, the widget's cleanup)."""
+    model = PanelModel(DesignSession(app.volume_rendering_logic), view or RecordingView())
+    model.observe_scene(app.scene)
+    model.set_parameters(NodeParameters(singleton_parameter_node(app.scene, MODULE_NAME)))
+    return model
+
+
+@pytest.fixture()
+def panel_of(slicer_app):
+    """``panel_of(view=None)``: the panel opened on the test's scene, cleaned up before the scene is."""
+    models = []
+
+    def open_one(view=None):
+        models.append(open_panel(slicer_app, view))
+        return models[-1]
+
+    yield open_one
+    for model in models:
+        model.stop()
+
+
+def add_volume(app, name):
+    return app.add_volume(nested_volume(), spacing=SPACING, name=name)
+
+
+def designed_volume(app, model, volume=None):
+    """A volume (by default a new one) selected in the panel, designed (Apply) and shown: ``(volume, property
+    node)``."""
+    volume = add_volume(app, "Nested") if volume is None else volume
+    model.parameters.inputVolume = volume
+    property_node = model.session.apply(volume, hand_made_design())
+    model.show_result(volume, model.session.design)
+    return volume, property_node
+
+
+def saved_scene(tmp_path, edit):
+    """A scene saved as a bundle: a volume, the module's parameter node selecting it (added after it, as when the
+    module is opened after loading), and its design with the user's ``edit``. Returns the .mrml path."""
+    from isosimtf.rendering import HeadlessSlicer
+
+    folder = tmp_path / "saved"
+    folder.mkdir()
+    with HeadlessSlicer(size=(32, 32)) as app:
+        volume = add_volume(app, "Head")
+        model = open_panel(app)
+        designed_volume(app, model, volume)
+        edit(model)
+        assert app.scene.SaveSceneToSlicerDataBundleDirectory(str(folder))
+        # The design is in a .txt file, read after every node is added (vtkMRMLTextNode.cxx:131-133,176-178).
+        assert list(folder.rglob("*.txt"))
+        text = (folder / "saved.mrml").read_text()
+        assert '"classes"' not in text
+        # The audit's failing order: the parameter node is copied in place before the design's text node is added.
+        assert text.index('singletonTag="IsoSimilarityTF"') < text.index("IsoSimilarityTF design")
+        saved = mrml.design_of_volume(volume).to_dict()
+        model.stop()
+    return folder / "saved.mrml", saved
+
+
+def _blue_tissue(model):
+    model.edit(lambda: model.session.edit(TISSUE, 3, color=(0.0, 0.0, 1.0)))
+
+
+# F1 -----------------------------------------------------------------------------------------------------------------
+def test_f1_a_scene_imported_after_the_panel_was_opened_shows_its_design_and_edits(tmp_path, slicer_app, panel_of):
+    path, saved = saved_scene(tmp_path, _blue_tissue)
+    view = RecordingView()
+    model = panel_of(view)
+    slicer_app.scene.SetURL(str(path))
+    assert slicer_app.scene.Import()  # Add Data of a .mrml: no close first
+    volume = slicer_app.scene.GetFirstNodeByName("Head")
+    assert model.shown_volume is volume
+    assert view.shown is not None and view.shown.to_dict() == saved
+    assert view.shown.tissues[3].color == [0.0, 0.0, 1.0]
+    assert model.detail_shown == model.parameters.tissues == 3
+    # An edit now keeps the saved ones (it writes the restored design, not an empty panel's fresh one).
+    model.edit(lambda: model.session.edit(TISSUE, 2, opacity=0.3))
+    stored = mrml.design_of_volume(volume)
+    assert stored.tissues[3].color == [0.0, 0.0, 1.0] and stored.tissues[2].opacity == pytest.approx(0.3)
+
+
+def test_f1_nothing_is_restored_while_the_import_runs(tmp_path, slicer_app, panel_of):
+    path, _ = saved_scene(tmp_path, _blue_tissue)
+    model = panel_of()
+    restored_while_importing = []
+    restore = model.session.restore
+    model.session.restore = lambda volume: (restored_while_importing.append(slicer_app.scene.IsImporting()),
+                                            restore(volume))[1]  # fmt: skip
+    slicer_app.scene.SetURL(str(path))
+    assert slicer_app.scene.Import()
+    assert restored_while_importing and not any(restored_while_importing)
+
+
+# F5: a preset copied in with CopyContent --------------------------------------------------------------------------
+def test_f5_showing_the_design_again_after_a_preset_brings_back_its_shading_and_gradient_opacity(slicer_app, panel_of):
+    view = RecordingView(answer=True)
+    model = panel_of(view)
+    volume, property_node = designed_volume(slicer_app, model)
+    prop = property_node.GetVolumeProperty()
+    ours = (prop.GetShade(), prop.GetAmbient(), prop.GetSpecular(), prop.GetGradientOpacity().GetValue(0.0))
+    preset = slicer_app.volume_rendering_logic.GetPresetByName("US-Fetal")
+    preset.GetVolumeProperty().SetAmbient(0.55)
+    preset.GetVolumeProperty().GetGradientOpacity().RemoveAllPoints()
+    preset.GetVolumeProperty().GetGradientOpacity().AddPoint(0.0, 0.25)
+    property_node.CopyContent(preset)  # the Volume Rendering module's preset menu
+    model.parameters.inputVolume = None
+    model.parameters.inputVolume = volume
+    assert view.changes[-1] == mrml.CHANGE_EDITED
+    model.edit(lambda: model.session.edit(TISSUE, 3, opacity=0.5))
+    assert view.asked == [mrml.CHANGE_EDITED]
+    prop = property_node.GetVolumeProperty()
+    assert (prop.GetShade(), prop.GetAmbient(), prop.GetSpecular(), prop.GetGradientOpacity().GetValue(0.0)) == ours
+    assert not mrml.modified_outside(volume)
+
+
+def test_an_edit_refused_after_a_preset_changes_nothing(slicer_app, panel_of):
+    view = RecordingView(answer=False)
+    model = panel_of(view)
+    volume, property_node = designed_volume(slicer_app, model)
+    property_node.CopyContent(slicer_app.volume_rendering_logic.GetPresetByName("US-Fetal"))
+    before = mrml.design_of_volume(volume).to_dict()
+    model.edit(lambda: model.session.edit(TISSUE, 3, opacity=0.5))
+    model.parameters.tissues = 1
+    assert view.asked == [mrml.CHANGE_EDITED, mrml.CHANGE_EDITED]
+    assert mrml.design_of_volume(volume).to_dict() == before and model.parameters.tissues == 3
+
+
+def test_a_colour_only_change_in_volume_rendering_is_asked_about_before_an_edit(slicer_app, panel_of):
+    from test_mrml import shift_color_of_point
+
+    view = RecordingView(answer=False)
+    model = panel_of(view)
+    volume, property_node = designed_volume(slicer_app, model)
+    shift_color_of_point(property_node, 2)
+    model.edit(lambda: model.session.edit(TISSUE, 3, opacity=0.5))
+    assert view.asked == [mrml.CHANGE_EDITED] and mrml.modified_outside(volume)
+
+
+def test_a_design_applied_to_another_volume_behind_the_panel_is_not_edited_from_it(slicer_app, panel_of):
+    view = RecordingView()
+    model = panel_of(view)
+    shown, _ = designed_volume(slicer_app, model)
+    other = add_volume(slicer_app, "Other")
+    model.session.apply(other, hand_made_design())  # a script, with the module's logic
+    before = mrml.design_of_volume(other).to_dict()
+    model.parameters.tissues = 1
+    model.edit(lambda: model.session.edit(TISSUE, 3, opacity=0.5))
+    assert mrml.design_of_volume(other).to_dict() == before
+    assert mrml.design_of_volume(shown).n_tissues == 3
+
+
+def test_the_input_follows_the_active_volume_until_the_user_picks_another(slicer_app, panel_of):
+    model = panel_of()
+    selection = slicer_app.app_logic.GetSelectionNode()
+    model.observe_selection(selection)
+    first, second = add_volume(slicer_app, "First"), add_volume(slicer_app, "Second")
+    selection.SetActiveVolumeID(first.GetID())
+    assert model.parameters.inputVolume is first and model.shown_volume is first
+    selection.SetActiveVolumeID(second.GetID())
+    assert model.parameters.inputVolume is second
+    model.volume_picked(first)  # the selector's nodeActivated, then its write into the parameter node
+    model.parameters.inputVolume = first
+    selection.SetActiveVolumeID(None)
+    selection.SetActiveVolumeID(second.GetID())
+    model.select_active_volume()  # the module entered again
+    assert model.parameters.inputVolume is first
+    model.volume_picked(second)  # picking the active volume follows it again
+    model.parameters.inputVolume = second
+    selection.SetActiveVolumeID(first.GetID())
+    assert model.parameters.inputVolume is first
+    label_map = slicer_app.scene.AddNewNodeByClass("vtkMRMLLabelMapVolumeNode")
+    selection.SetActiveVolumeID(label_map.GetID())  # not a volume the selector lists
+    assert model.parameters.inputVolume is first and model.active_volume() is None
+    model.volume_picked(second)
+    model.parameters.inputVolume = second
+    slicer_app.scene.Clear(0)  # a new scene: follow the active volume again
+    third = add_volume(slicer_app, "Third")
+    selection = slicer_app.app_logic.GetSelectionNode()
+    model.observe_selection(selection)
+    selection.SetActiveVolumeID(third.GetID())
+    assert model.parameters.inputVolume is third
+
+
+# Apply and Cancel ----------------------------------------------------------------------------------------------------
+def test_apply_here_shows_the_design_and_cancel_changes_nothing(slicer_app, panel_of):
+    view = RecordingView()
+    model = panel_of(view)
+    volume = add_volume(slicer_app, "Nested")
+    model.parameters.inputVolume = volume
+    reports = []
+    design = model.run_here(volume, {"n_bins": 32, "tissues": 1}, lambda *report: reports.append(report))
+    assert view.shown is design and model.shown_volume is volume and not model.running
+    assert model.parameters.tissues == model.detail_shown and reports[0][0] == "quantize"
+    stored, nodes = mrml.design_of_volume(volume).to_dict(), slicer_app.scene.GetNumberOfNodes()
+
+    def press_cancel(stage, fraction, message):  # Cancel pressed while the similarity is computed
+        assert model.running
+        if stage == "similarity":
+            model.cancel()
+
+    assert model.run_here(volume, {"n_bins": 64}, press_cancel) is None
+    assert mrml.design_of_volume(volume).to_dict() == stored and slicer_app.scene.GetNumberOfNodes() == nodes
+    assert not model.running and view.shown is design
+
+    def remove_volume(stage, fraction, message):
+        if stage == "similarity" and volume.GetScene() is not None:
+            slicer_app.scene.RemoveNode(volume)
+
+    assert model.run_here(volume, {"n_bins": 64}, remove_volume) is None and not model.running
+
+
+def _poll_until_done(model, timeout=120):
+    import time
+
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        state = model.poll_job()[1]
+        if state != JOB_RUNNING:
+            return state
+        time.sleep(0.05)
+    raise TimeoutError
+
+
+def test_a_job_is_shown_when_done_and_cancel_or_a_removed_volume_leave_nothing(slicer_app, panel_of, tmp_path):
+    import os
+
+    view = RecordingView()
+    model = panel_of(view)
+    volume = add_volume(slicer_app, "Nested")
+    model.parameters.inputVolume = volume
+    model.start_job(volume, {"n_bins": 32})
+    folder = model.job.folder
+    assert model.running
+    other = add_volume(slicer_app, "Other")
+    model.parameters.inputVolume = other  # a script: ignored while the job runs (the selector is disabled)
+    assert model.shown_volume is volume
+    assert _poll_until_done(model) == JOB_DONE
+    assert mrml.design_of_volume(volume).n_bins == 32 and view.designs[-2].n_bins == 32
+    assert model.shown_volume is other and view.shown is None  # then the panel shows the input of now
+    assert model.job is None and not os.path.exists(folder)
+    model.parameters.inputVolume = volume
+    model.start_job(volume, {"n_bins": 1024})
+    folder = model.job.folder
+    model.cancel()
+    assert model.job is None and not model.running and not os.path.exists(folder)
+    model.start_job(volume, {"n_bins": 32})
+    folder = model.job.folder
+    slicer_app.scene.RemoveNode(volume)
+    assert _poll_until_done(model) == JOB_VOLUME_REMOVED
+    assert model.job is None and not os.path.exists(folder)
+
+
+# F2 -----------------------------------------------------------------------------------------------------------------
+class _Wrapper:
+    def __init__(self, connected):
+        self._parameterGUIs = dict.fromkeys(connected)
+
+
+def test_f2_the_gui_tag_of_slicer_5_8_is_found():
+    assert gui_tag(_Wrapper([0, 1, 2]), None) == 2  # 5.8: connectGui returned None
+    assert gui_tag(_Wrapper([0, 1, 2]), 1) == 1  # 5.10 and later: the tag given
+    assert gui_tag(_Wrapper([]), None) is None
+    assert gui_tag(object(), None) is None
+
+
+def test_stop_removes_every_observer(slicer_app, panel_of):
+    view = RecordingView()
+    model = panel_of(view)
+    model.stop()
+    parameters = NodeParameters(singleton_parameter_node(slicer_app.scene, MODULE_NAME))
+    parameters.inputVolume = add_volume(slicer_app, "Nested")
+    slicer_app.scene.Clear(0)
+    assert view.designs == [] and model.parameters is None
+
+
+def test_the_recorded_design_is_the_sessions(slicer_app, panel_of):
+    model = panel_of()
+    volume = add_volume(slicer_app, "Nested")
+    model.session.apply(volume, hand_made_design())
+    model.parameters.inputVolume = volume
+    assert model.view.shown is model.session.design
+    np.testing.assert_array_equal(model.view.shown.labels, hand_made_design().labels)
