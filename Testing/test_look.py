@@ -179,7 +179,7 @@ def test_tissue_colours_follow_intensity_and_are_shared_by_their_classes():
 
 
 def test_a_large_bright_tissue_ends_at_ivory_not_white():
-    classes = make_classes([1000, 300, 600])
+    classes = make_classes([1000, 600, 550])  # white matter: about as large as grey matter
     look = default_look(classes, np.arange(3), np.arange(3.0), "mr", noise_sd=0.2)
     assert look.colors[2] == pytest.approx(list(ramp_colors(np.array([0.75]))[0]))
 

@@ -26,8 +26,8 @@ the same tissues, the same opacities and the same picture.
 Colours follow one ramp ordered by intensity (dark red -> tan -> ivory -> white), placed by mean value between the
 lowest shown tissue and the densest real one: one colour per tissue, so neighbouring classes never read as rainbow
 rings; on CT (``kind`` ``"ct"``) each class at its own mean, continuous as in the CT presets. White is kept for a
-densest tissue that is not also the largest one (bone, contrast): a large bright tissue ends at ivory, or the
-headlight washes it out. The qualitative palette stays available (``colors="distinct"``).
+densest tissue that is a tail (at most ``TAIL_SHARE`` of the largest tissue's voxels: bone, contrast): a large
+bright tissue (white matter) ends at ivory, or the headlight washes it out. The qualitative palette stays available (``colors="distinct"``).
 
 Gradient opacity (option ``gradient_opacity="auto"``; ``"off"`` by default) scales opacity by the local gradient: 0
 where the value does not change, 1 from :func:`gradient_ramp_top` up, so homogeneous insides fade and boundaries stay.
@@ -301,8 +301,9 @@ def default_look(
         low = tissue_value[anchors[0]]
         top = max(real, key=lambda t: tissue_bin[t]) if real else anchors[-1]
         high = tissue_value[top]
-        largest_shown = max(anchors, key=lambda t: tissue_voxels[t])
-        end = IVORY_PLACE if top == largest_shown and len(anchors) > 1 else 1.0
+        largest = max(anchors, key=lambda t: tissue_voxels[t])
+        tail = top != largest and tissue_voxels[top] <= TAIL_SHARE * tissue_voxels[largest]
+        end = 1.0 if tail or len(anchors) == 1 else IVORY_PLACE
 
         def ramp_at(value: float) -> list[float]:
             place = end * (value - low) / (high - low) if high > low else end
