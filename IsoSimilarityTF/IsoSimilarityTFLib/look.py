@@ -27,7 +27,8 @@ Colours follow one ramp ordered by intensity (dark red -> tan -> ivory -> white)
 lowest shown tissue and the densest real one: one colour per tissue, so neighbouring classes never read as rainbow
 rings; on CT (``kind`` ``"ct"``) each class at its own mean, continuous as in the CT presets. White is kept for a
 densest tissue that is a tail (at most ``TAIL_SHARE`` of the largest tissue's voxels: bone, contrast): a large
-bright tissue (white matter) ends at ivory, or the headlight washes it out. The qualitative palette stays available (``colors="distinct"``).
+bright tissue (white matter) ends at ivory, or the headlight washes it out. The qualitative palette stays
+available (``colors="distinct"``).
 
 Gradient opacity (option ``gradient_opacity="auto"``; ``"off"`` by default) scales opacity by the local gradient: 0
 where the value does not change, 1 from :func:`gradient_ramp_top` up, so homogeneous insides fade and boundaries stay.
