@@ -11,7 +11,7 @@ from volume_writers import write_volume
 
 from IsoSimilarityTFLib import memory
 from IsoSimilarityTFLib.chunked import is_dask_array
-from isosimtf import chunked_readers, cli, run
+from isosimtf import chunked_readers, cli, headers, run
 from isosimtf.phantom import head_phantom
 from isosimtf.rendering import slicer_core_available
 from isosimtf.volume_io import Volume, read_volume
@@ -127,7 +127,7 @@ def test_the_preview_is_every_step_th_voxel_in_the_same_space(tmp_path: Path, na
 
 def test_compressed_files_are_not_read_lazily(tmp_path: Path) -> None:
     write_volume(geometry_volume(volume_values()), tmp_path / "v.nrrd", compress=True)
-    assert chunked_readers.raw_layout(tmp_path / "v.nrrd") is None
+    assert not headers.stored_voxels(tmp_path / "v.nrrd").raw
     assert not chunked_readers.reads_chunked(tmp_path / "v.nrrd", 256)
     with pytest.raises(ValueError, match="not stored raw"):
         chunked_readers.read_chunked(tmp_path / "v.nrrd")

@@ -403,7 +403,7 @@ def test_small_files_claiming_huge_volumes_are_refused_from_the_header(tmp_path:
         "ElementDataFile = data.raw.gz\n"
     )
     for path in files:
-        assert "2048 x 2048 x 512 voxels of int16 (4096 MiB), more than its" in _read_error(path, capfd)
+        assert "2048 x 2048 x 512 voxels of int16 (4.0 GiB), more than its" in _read_error(path, capfd)
 
 
 def test_ascii_nrrd_is_read_correctly(tmp_path: Path) -> None:

@@ -31,12 +31,15 @@ class ImageHeader:
         components: values per voxel (1 for a scalar volume).
         dtype: the type of the voxel values as Slicer will hold them (e.g. rescaled DICOM values).
         files: the files that hold the voxels: one, or the slices of a DICOM series in order along the slice normal.
+        ijk_to_ras: the 4x4 matrix from the voxel indices of the file's own order to RAS millimetres, as the reader
+            gives it before the storage node makes a left-handed frame right-handed (:func:`.volume.right_handed`).
     """
 
     dimensions: tuple[int, int, int]
     components: int
     dtype: np.dtype
     files: tuple[Path, ...]
+    ijk_to_ras: np.ndarray
 
 
 def _slicer() -> Any:
@@ -105,7 +108,12 @@ def read_header(path: Path, files: tuple[Path, ...]) -> ImageHeader:
         raise cannot_read(path, _reason(files[0], texts))
     dimensions = tuple(int(extent[2 * a + 1] - extent[2 * a] + 1) for a in range(3))
     dtype = np.dtype(get_numpy_array_type(reader.GetOutputScalarType()))
-    return ImageHeader(dimensions, int(reader.GetNumberOfComponents()), dtype, files)  # type: ignore[arg-type]
+    matrix = reader.GetRasToIjkMatrix()
+    ras_to_ijk = np.array([[matrix.GetElement(r, c) for c in range(4)] for r in range(4)])
+    if not np.isfinite(ras_to_ijk).all() or abs(np.linalg.det(ras_to_ijk)) < 1e-300:
+        raise cannot_read(path, "its header gives a zero or invalid voxel spacing or direction")
+    components = int(reader.GetNumberOfComponents())
+    return ImageHeader(dimensions, components, dtype, files, np.linalg.inv(ras_to_ijk))  # type: ignore[arg-type]
 
 
 def _dicom_tags(path: Path) -> dict[str, str]:

@@ -22,7 +22,6 @@ can hold (a gzip stream expands at most about 1032 times), and small enough for 
 import gzip
 import os
 import plistlib
-import re
 import struct
 import tarfile
 import zlib
@@ -32,12 +31,13 @@ from typing import Optional, Union
 
 import numpy as np
 
-from IsoSimilarityTFLib.chunked import is_dask_array
 from IsoSimilarityTFLib.errors import VolumeReadError
 from IsoSimilarityTFLib.memory import check_memory
 
-from . import chunked_readers, slicer_readers
+from . import chunked_readers, headers, slicer_readers
+from .formatting import format_bytes
 from .read_errors import cannot_read, captured_native_output, first_message
+from .volume import Volume
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -47,6 +47,8 @@ SUPPORTED_TEXT = (
     ".nrrd, .nhdr, .mha, .mhd, .nii, .nii.gz, .vti, .npy, .inv3, .tif, .tiff, a Zarr store, a folder of TIFF planes, "
     "a DICOM file or a DICOM series folder"
 )
+
+_NRRD_OR_METAIMAGE = (".nrrd", ".nhdr", ".mha", ".mhd")
 
 #: Largest expansion of a deflate (gzip, zlib) stream: a file of N bytes holds at most about 1032 N bytes of voxels.
 _MAX_DEFLATE_RATIO = 1032
@@ -72,61 +74,6 @@ _REAL_DATASETS: dict[str, tuple[str, ...]] = {
 #: InVesalius stores axial projects with i towards the patient's left, j towards anterior (it flips DICOM rows)
 #: and k towards superior: in RAS, the columns below.
 _INV3_AXIAL_DIRECTIONS = np.diag([-1.0, 1.0, 1.0])
-
-
-@dataclass(frozen=True, eq=False)
-class Volume:
-    """A scalar volume with its geometry.
-
-    Attributes:
-        values: voxel values, shape ``(K, J, I)`` = (z, y, x), the file's own dtype (e.g. int16 HU for CT).
-        spacing: voxel size in mm along the i, j, k axes (x, y, z order, i.e. ``values.shape[::-1]`` order).
-        origin: RAS position in mm of the centre of voxel ``values[0, 0, 0]``.
-        directions: shape (3, 3); column ``c`` is the unit RAS direction of index axis ``c`` (i, j, k).
-        name: a short name (the file name without its suffix).
-    """
-
-    values: np.ndarray
-    spacing: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    directions: np.ndarray = None  # type: ignore[assignment]  # identity when omitted
-    name: str = "volume"
-
-    def __post_init__(self) -> None:
-        # A dask array (a volume read lazily, see .chunked_readers) stays lazy.
-        values = self.values if is_dask_array(self.values) else np.asarray(self.values)
-        if values.ndim != 3:
-            raise ValueError(f"Volume values must be 3-D (k, j, i); got shape {values.shape}")
-        directions = np.eye(3) if self.directions is None else np.array(self.directions, dtype=float)
-        if directions.shape != (3, 3):
-            raise ValueError(f"Volume directions must be 3x3; got shape {directions.shape}")
-        spacing = tuple(float(s) for s in self.spacing)
-        origin = tuple(float(o) for o in self.origin)
-        if len(spacing) != 3 or len(origin) != 3:
-            raise ValueError("Volume spacing and origin need 3 values each")
-        object.__setattr__(self, "values", values)
-        object.__setattr__(self, "directions", directions)
-        object.__setattr__(self, "spacing", spacing)
-        object.__setattr__(self, "origin", origin)
-
-    @classmethod
-    def from_ijk_to_ras(cls, values: np.ndarray, ijk_to_ras: np.ndarray, name: str) -> "Volume":
-        """A volume from its values and the 4x4 matrix mapping voxel indices (i, j, k, 1) to RAS millimetres."""
-        axes = np.asarray(ijk_to_ras, dtype=float)[:3, :3]
-        spacing = np.linalg.norm(axes, axis=0)
-        return cls(values, tuple(spacing), tuple(np.asarray(ijk_to_ras)[:3, 3]), axes / spacing, name)
-
-    @property
-    def shape(self) -> tuple[int, int, int]:
-        """Array shape ``(K, J, I)``."""
-        return tuple(int(n) for n in self.values.shape)  # type: ignore[return-value]
-
-    def ijk_to_ras(self) -> np.ndarray:
-        """Return the 4x4 homogeneous matrix mapping voxel indices (i, j, k, 1) to RAS millimetres."""
-        matrix = np.eye(4)
-        matrix[:3, :3] = self.directions * np.asarray(self.spacing)[np.newaxis, :]
-        matrix[:3, 3] = self.origin
-        return matrix
 
 
 def read_volume(path: PathLike, *, n_bins: Optional[int] = None) -> Volume:
@@ -186,33 +133,6 @@ def _stem(path: Path) -> str:
     return path.name[: -len(suffix)] if suffix and len(suffix) < len(path.name) else path.name
 
 
-#: The one header field the size bound needs from a detached header: where its voxels are.
-_DATA_FILE_FIELD = re.compile(r"^(?:data ?file:|ElementDataFile\s*=)[ \t]*(.*?)[ \t]*$", re.I | re.M)
-
-
-def _stored_bytes(path: Path, files: tuple[Path, ...]) -> Optional[int]:
-    """Bytes on disk that hold the voxels, when they are raw, text or deflated (gzip, zlib); else None.
-
-    The header of a ``.nhdr`` / ``.mhd`` names its data file (one field read here); a NRRD in bzip2 (which expands
-    further than deflate) or whose data is a list or pattern of files gives None: only the memory bound applies.
-    """
-    lower = path.name.lower()
-    if not lower.endswith((".nrrd", ".nhdr", ".mhd")):
-        return sum(f.stat().st_size for f in files)
-    with open(path, "rb") as handle:
-        head = handle.read(1 << 16).decode("latin-1").split("\n\n", 1)[0]  # the header only, not the voxels
-    if re.search(r"^encoding:[ \t]*bz", head, re.I | re.M):
-        return None
-    field = _DATA_FILE_FIELD.search(head)
-    if field is None or field.group(1).upper() == "LOCAL":
-        return path.stat().st_size  # the voxels follow the header
-    name = field.group(1)
-    if len(name.split()) > 1 or name.upper().startswith("LIST") or "%" in name:
-        return None
-    data = path.parent / name
-    return path.stat().st_size + (data.stat().st_size if data.is_file() else 0)
-
-
 def _check_size(
     path: Path,
     dimensions: tuple[int, ...],
@@ -239,7 +159,7 @@ def _check_size(
     if stored_bytes is not None and voxel_bytes > stored_bytes * _MAX_DEFLATE_RATIO:
         raise cannot_read(
             path,
-            f"its header announces {size} voxels of {dtype.name} ({voxel_bytes / 2**20:.0f} MiB), more than its "
+            f"its header announces {size} voxels of {dtype.name} ({format_bytes(voxel_bytes)}), more than its "
             f"{stored_bytes} bytes on disk can hold: it is truncated or corrupt",
         )
     check_memory(tuple(int(d) for d in dimensions[::-1]), n_bins, input_bytes=voxel_bytes)
@@ -247,19 +167,45 @@ def _check_size(
 
 def _read_with_slicer(path: Path, files: tuple[Path, ...], name: str, n_bins: Optional[int]) -> Volume:
     header = slicer_readers.read_header(path, files)
-    stored = _stored_bytes(path, header.files)
-    _check_size(path, header.dimensions, header.components, header.dtype, n_bins, stored)
-    if path.name.lower().endswith((".nii", ".nii.gz")):
-        _check_nifti_complete(path, int(np.prod(header.dimensions)) * header.dtype.itemsize)
+    stored = headers.stored_voxels(path) if len(files) == 1 else None
+    nifti = path.name.lower().endswith((".nii", ".nii.gz"))
+    if stored is not None:
+        on_disk = stored.stored_bytes
+    elif path.name.lower().endswith(_NRRD_OR_METAIMAGE):
+        on_disk = None  # a list or pattern of data files: only the memory bound applies
+    else:
+        on_disk = sum(f.stat().st_size for f in files)
+    _check_size(path, header.dimensions, header.components, header.dtype, n_bins, on_disk)
+    if nifti:
+        _check_nifti(path, header.dimensions)
+    if stored is not None and stored.dtype.kind in "iu" and stored.dtype.itemsize == 8:
+        # Slicer's reader turns 64-bit integers into float32 (exact only below 2^24): read the stored integers.
+        if not stored.raw:
+            raise cannot_read(
+                path,
+                f"it holds {stored.dtype.name} voxels, which Slicer's reader rounds to float32, and they are "
+                "compressed: save them uncompressed (raw), or as int32 or float64",
+            )
+        _check_size(path, header.dimensions, 1, stored.dtype, n_bins, stored.stored_bytes)
+        values, ijk_to_ras = chunked_readers.raw_values(path, stored, chunked_readers.raw_array)
+        return Volume.from_ijk_to_ras(values, ijk_to_ras, name)
     values, ijk_to_ras = slicer_readers.read_image(path, header)
     return Volume.from_ijk_to_ras(values, ijk_to_ras, name)
 
 
-def _check_nifti_complete(path: Path, voxel_bytes: int) -> None:
-    """Refuse a truncated NIfTI file: Slicer's NIfTI reader fills the missing voxels with zeros and says nothing.
+#: NIfTI datatype codes of 64-bit integers (NIFTI_TYPE_INT64, NIFTI_TYPE_UINT64).
+_NIFTI_INT64 = {1024: "int64", 1280: "uint64"}
 
-    The voxels start at ``vox_offset`` (NIfTI-1: float32 at byte 108; NIfTI-2: int64 at byte 168); a ``.nii.gz`` is
-    decompressed as a stream (never held in memory) to count its bytes and to find a truncated or corrupt stream.
+
+def _check_nifti(path: Path, dimensions: tuple[int, int, int]) -> None:
+    """Refuse a truncated NIfTI file (Slicer's NIfTI reader fills missing voxels with zeros and says nothing) and
+    64-bit integers (which it rounds to float32).
+
+    The voxels start at ``vox_offset`` and take ``bitpix`` bits each, the stored type: with ``scl_slope`` /
+    ``scl_inter`` Slicer gives float32 values of int16 (or uint16, ...) voxels, so the bytes on disk are counted
+    from the header's own type, never from the type Slicer returns. NIfTI-1: datatype, bitpix int16 at bytes 70, 72;
+    vox_offset float32 at 108. NIfTI-2: int16 at 12, 14; int64 at 168. A ``.nii.gz`` is decompressed as a stream
+    (never held in memory) to count its bytes and to find a truncated or corrupt stream.
     """
     opener = gzip.open if path.name.lower().endswith(".gz") else open
     try:
@@ -275,15 +221,25 @@ def _check_nifti_complete(path: Path, voxel_bytes: int) -> None:
         raise cannot_read(path, f"the gzip stream is truncated or corrupt ({error})") from None
     if len(head) < 176:
         raise cannot_read(path, "the NIfTI header is truncated")
-    layouts = {348: ("f", 108), 540: ("q", 168)}  # sizeof_hdr: type and byte of vox_offset
+    layouts = {348: (70, "f", 108), 540: (12, "q", 168)}  # sizeof_hdr: byte of datatype, type and byte of vox_offset
     for endian in "<>":
         sizeof_hdr = struct.unpack_from(endian + "i", head)[0]
         if sizeof_hdr in layouts:
-            kind, at = layouts[sizeof_hdr]
-            offset = max(int(struct.unpack_from(endian + kind, head, at)[0]), sizeof_hdr)
+            at_type, kind, at_offset = layouts[sizeof_hdr]
+            datatype, bitpix = struct.unpack_from(endian + "hh", head, at_type)
+            offset = max(int(struct.unpack_from(endian + kind, head, at_offset)[0]), sizeof_hdr)
             break
     else:
         raise cannot_read(path, "not a NIfTI-1 or NIfTI-2 header")
+    if datatype in _NIFTI_INT64:
+        raise cannot_read(
+            path,
+            f"it holds {_NIFTI_INT64[datatype]} voxels, which Slicer's reader rounds to float32: save them as int32, "
+            "float64, or a raw NRRD (read exactly)",
+        )
+    if bitpix <= 0 or bitpix % 8:
+        raise cannot_read(path, f"its header gives {bitpix} bits per voxel")
+    voxel_bytes = int(np.prod(dimensions, dtype=np.float64)) * (bitpix // 8)
     if size - offset < voxel_bytes:
         found = max(size - offset, 0)
         raise cannot_read(path, f"it is truncated: {voxel_bytes} bytes of voxel data expected, {found} found")
