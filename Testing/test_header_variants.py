@@ -26,7 +26,7 @@ def _values(dtype: str = "<i2") -> np.ndarray:
     return values.astype(dtype)
 
 
-K, J, I = _values().shape
+NK, NJ, NI = _values().shape
 NRRD = "NRRD0004\ntype: {type}\ndimension: 3\nsizes: {I} {J} {K}\nendian: {endian}\nencoding: raw\n"
 MHA = "ObjectType = Image\nNDims = 3\nDimSize = {I} {J} {K}\nElementType = {type}\n"
 #: (ijk_to_ras of the file's own index order, values in the file) -> the pair Slicer shows (right-handed).
@@ -43,8 +43,8 @@ def _matrix(axes, origin) -> np.ndarray:
 def _variants() -> dict:
     v = _values()
     raw = v.tobytes()
-    nrrd = NRRD.format(type="short", I=I, J=J, K=K, endian="little")
-    mha = MHA.format(type="MET_SHORT", I=I, J=J, K=K)
+    nrrd = NRRD.format(type="short", I=NI, J=NJ, K=NK, endian="little")
+    mha = MHA.format(type="MET_SHORT", I=NI, J=NJ, K=NK)
     identity = LPS @ np.eye(4)
     directions = (
         "space: left-posterior-superior\nspace directions: (0.5,0,0) (0,0.75,0) (0,0,{z})\nspace origin: (1,2,3)\n"
@@ -58,7 +58,7 @@ def _variants() -> dict:
                           LPS @ _matrix(np.diag([0.01, 0.02, 0.03]), [0, 0, 0])),
         "nrrd-crlf": ({"v.nrrd": (nrrd + "spacings: 0.01 0.02 0.03\n\n").replace("\n", "\r\n").encode() + raw},
                       "<i2", LPS @ _matrix(np.diag([0.01, 0.02, 0.03]), [0, 0, 0])),
-        "nrrd-big-endian": ({"v.nrrd": NRRD.format(type="short", I=I, J=J, K=K, endian="big").encode() + b"\n"
+        "nrrd-big-endian": ({"v.nrrd": NRRD.format(type="short", I=NI, J=NJ, K=NK, endian="big").encode() + b"\n"
                              + v.astype(">i2").tobytes()}, "<i2", identity),
         "nhdr-line-skip": ({"v.nhdr": (nrrd + "data file: v.raw\nline skip: 2\n").encode(),
                             "v.raw": b"a comment line\nanother one\n" + raw}, "<i2", identity),
@@ -68,9 +68,9 @@ def _variants() -> dict:
                                     "v.raw": b"a preamble of any length" + raw}, "<i2", identity),
         "nrrd-attached-byte-skip-minus-1": ({"v.nrrd": (nrrd + "byte skip: -1\n\n").encode() + b"xyz" + raw},
                                             "<i2", identity),
-        "nrrd-int64": ({"v.nrrd": NRRD.format(type="int64", I=I, J=J, K=K, endian="little").encode() + b"\n"
+        "nrrd-int64": ({"v.nrrd": NRRD.format(type="int64", I=NI, J=NJ, K=NK, endian="little").encode() + b"\n"
                         + _values("<i8").tobytes()}, "<i8", identity),
-        "nrrd-uint64": ({"v.nrrd": NRRD.format(type="uint64", I=I, J=J, K=K, endian="little").encode() + b"\n"
+        "nrrd-uint64": ({"v.nrrd": NRRD.format(type="uint64", I=NI, J=NJ, K=NK, endian="little").encode() + b"\n"
                          + _values("<u8").tobytes()}, "<u8", identity),
         "mha-local": ({"v.mha": (mha + "ElementSpacing = 0.5 0.75 2\nOffset = 1 2 3\nElementDataFile = LOCAL\n")
                        .encode() + raw}, "<i2", LPS @ _matrix(np.diag([0.5, 0.75, 2.0]), [1, 2, 3])),
@@ -88,7 +88,7 @@ def _variants() -> dict:
                              "v.raw": b"123456789" + raw}, "<i2", identity),
         "mhd-header-size-minus-1": ({"v.mhd": (mha + "HeaderSize = -1\nElementDataFile = v.raw\n").encode(),
                                      "v.raw": b"some bytes first" + raw}, "<i2", identity),
-        "mha-long-long": ({"v.mha": (MHA.format(type="MET_LONG_LONG", I=I, J=J, K=K) + "ElementDataFile = LOCAL\n")
+        "mha-long-long": ({"v.mha": (MHA.format(type="MET_LONG_LONG", I=NI, J=NJ, K=NK) + "ElementDataFile = LOCAL\n")
                            .encode() + _values("<i8").tobytes()}, "<i8", identity),
     }  # fmt: skip
 
@@ -135,7 +135,7 @@ def test_the_parser_finds_the_voxels_where_slicer_does(tmp_path: Path) -> None:
     stored = headers.stored_voxels(path)
     assert stored is not None and stored.raw
     assert stored.data == tmp_path / "v.raw" and stored.offset == len(b"a preamble of any length")
-    assert stored.shape == (K, J, I) and stored.dtype == np.dtype("<i2")
+    assert stored.shape == (NK, NJ, NI) and stored.dtype == np.dtype("<i2")
 
 
 def test_compressed_metaimage_without_its_size_is_refused_in_one_line(tmp_path: Path) -> None:
@@ -143,8 +143,8 @@ def test_compressed_metaimage_without_its_size_is_refused_in_one_line(tmp_path: 
 
     path = tmp_path / "v.mha"
     compressed = zlib.compress(_values().tobytes())
-    path.write_bytes((MHA.format(type="MET_SHORT", I=I, J=J, K=K) + "CompressedData = True\nElementDataFile = LOCAL\n")
-                     .encode() + compressed)  # fmt: skip
+    header = MHA.format(type="MET_SHORT", I=NI, J=NJ, K=NK) + "CompressedData = True\nElementDataFile = LOCAL\n"
+    path.write_bytes(header.encode() + compressed)
     for read in (read_volume, chunked_readers.read_chunked):
         with pytest.raises(
             VolumeReadError, match=f"without CompressedDataSize.*'CompressedDataSize = {len(compressed)}'"
@@ -159,9 +159,9 @@ def test_compressed_metaimage_without_its_size_is_refused_in_one_line(tmp_path: 
 
 
 def test_a_missing_data_file_is_named(tmp_path: Path) -> None:
-    nrrd = NRRD.format(type="short", I=I, J=J, K=K, endian="little") + "data file: gone.raw\n"
+    nrrd = NRRD.format(type="short", I=NI, J=NJ, K=NK, endian="little") + "data file: gone.raw\n"
     (tmp_path / "v.nhdr").write_text(nrrd)
-    (tmp_path / "v.mhd").write_text(MHA.format(type="MET_SHORT", I=I, J=J, K=K) + "ElementDataFile = gone.raw\n")
+    (tmp_path / "v.mhd").write_text(MHA.format(type="MET_SHORT", I=NI, J=NJ, K=NK) + "ElementDataFile = gone.raw\n")
     for name in ("v.nhdr", "v.mhd"):
         for read in (read_volume, chunked_readers.read_chunked):
             with pytest.raises(VolumeReadError, match=r"its data file '.*gone\.raw' does not exist"):
@@ -172,7 +172,7 @@ def test_compressed_int64_is_refused_rather_than_rounded(tmp_path: Path) -> None
     import gzip
 
     path = tmp_path / "v.nrrd"
-    header = NRRD.format(type="int64", I=I, J=J, K=K, endian="little").replace("raw", "gzip") + "\n"
+    header = NRRD.format(type="int64", I=NI, J=NJ, K=NK, endian="little").replace("raw", "gzip") + "\n"
     path.write_bytes(header.encode() + gzip.compress(_values("<i8").tobytes()))
     with pytest.raises(VolumeReadError, match="int64 voxels, which Slicer's reader rounds to float32"):
         read_volume(path)

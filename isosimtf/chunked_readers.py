@@ -5,9 +5,10 @@ None of these readers loads the volume: each returns a :class:`~.volume.Volume` 
 (``IsoSimilarityTFLib.chunked``).
 
 - Zarr (a folder holding ``zarr.json``, ``.zarray`` or ``.zgroup``): an array, or an OME-Zarr image whose level 0
-  (full resolution) is read; its ``scale`` gives the spacing, in the store's own unit. Leading axes of one voxel (time,
-  channel) are dropped.
-- TIFF: a multi-page file (``.tif``, ``.tiff``) or a folder of single-plane TIFF files (sorted by name), one page per
+  (full resolution) is read; its ``scale`` gives the spacing, turned into millimetres from the axes' ``unit``.
+  Leading axes of one voxel (time, channel) are dropped.
+- TIFF: a multi-page file (``.tif``, ``.tiff``) or a folder of single-plane TIFF files (in natural order: ``plane_2``
+  before ``plane_10``), one page per
   plane along k, through ``tifffile``'s Zarr view; spacing 1.
 - NRRD (``.nrrd``, ``.nhdr``) and MetaImage (``.mha``, ``.mhd``) whose voxels are stored raw (uncompressed) in the
   file after the header or in a detached data file: read from the file a few planes per chunk; geometry as Slicer
@@ -23,6 +24,7 @@ along each axis, at most :data:`PREVIEW_VOXELS` voxels.
 Optional dependencies (the ``outofcore`` extra): ``dask[array]``, plus ``zarr`` and ``tifffile`` for their formats.
 """
 
+import re
 from pathlib import Path
 from typing import Any, Callable, Optional
 
@@ -248,6 +250,8 @@ def _zarr_volume(path: Path) -> tuple[Any, tuple[float, float, float]]:
         for transform in level.get("coordinateTransformations", []):
             if transform.get("type") == "scale":
                 scale = [float(s) for s in transform["scale"]][-3:]
+        units = [axis.get("unit") if isinstance(axis, dict) else None for axis in multiscales[0].get("axes", [])][-3:]
+        scale = [s * _millimetres(path, unit) for s, unit in zip(scale, units + [None] * (3 - len(units)))]
         node = node[level["path"]]
     values = da.from_zarr(node)
     while values.ndim > 3 and values.shape[0] == 1:  # OME-Zarr's time and channel axes
@@ -256,8 +260,31 @@ def _zarr_volume(path: Path) -> tuple[Any, tuple[float, float, float]]:
     return values, (scale[2], scale[1], scale[0])
 
 
+def _natural_key(path: Path) -> list:
+    """Sort key that orders ``plane_2`` before ``plane_10`` (numbers by value, the rest as text)."""
+    return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", path.name)]
+
+
+#: OME-Zarr space units (UDUNITS-2 names) in millimetres; Slicer's world unit is the millimetre.
+_UNIT_MM = {
+    "millimeter": 1.0, "micrometer": 1e-3, "nanometer": 1e-6, "centimeter": 10.0, "meter": 1000.0,
+    "decimeter": 100.0, "angstrom": 1e-7,
+}  # fmt: skip
+
+
+def _millimetres(path: Path, unit: Optional[str]) -> float:
+    """Millimetres per unit of an OME-Zarr axis; no unit: the value is taken as millimetres."""
+    if unit is None:
+        return 1.0
+    if unit not in _UNIT_MM:
+        raise cannot_read(path, f"its axes are in '{unit}', a unit not known here (known: {', '.join(_UNIT_MM)})")
+    return _UNIT_MM[unit]
+
+
 def _tiff_files(folder: Path) -> list[Path]:
-    return sorted(p for p in folder.iterdir() if p.name.lower().endswith(_TIFF_SUFFIXES))
+    """The TIFF planes of a folder in natural order (``plane_0, plane_1, ..., plane_10``), as Slicer's image
+    stack readers and file browsers order them; text order would put ``plane_10`` after ``plane_1``."""
+    return sorted((p for p in folder.iterdir() if p.name.lower().endswith(_TIFF_SUFFIXES)), key=_natural_key)
 
 
 def _tiff_volume(path: Path) -> Any:
@@ -267,12 +294,39 @@ def _tiff_volume(path: Path) -> Any:
     import zarr
 
     if path.is_dir():
-        store = tifffile.TiffSequence(_tiff_files(path)).aszarr()
+        files = _tiff_files(path)
+        first = _tiff_plane(path, files[0])
+        for file in files[1:]:
+            plane = _tiff_plane(path, file)
+            if plane != first:
+                raise cannot_read(
+                    path,
+                    f"its TIFF planes differ: {files[0].name} is {first[0]} of {first[1]}, {file.name} is "
+                    f"{plane[0]} of {plane[1]}; every plane of the stack needs one size and type",
+                )
+        store = tifffile.TiffSequence(files).aszarr()
     else:
         store = tifffile.imread(path, aszarr=True)
     values = da.from_zarr(zarr.open(store, mode="r"))
     _check_3d(path, values.shape)
     return values
+
+
+def _tiff_plane(folder: Path, file: Path) -> tuple[tuple[int, ...], str]:
+    """Shape and dtype of a single-plane TIFF file of a folder stack (a multi-page or unreadable file refused)."""
+    import tifffile
+
+    try:
+        with tifffile.TiffFile(file) as tiff:
+            pages = len(tiff.pages)
+            shape, dtype = tuple(tiff.pages[0].shape), str(tiff.pages[0].dtype)
+    except (tifffile.TiffFileError, OSError, ValueError) as error:
+        raise cannot_read(folder, f"{file.name} is not a readable TIFF file ({error})") from None
+    if pages != 1 or len(shape) != 2:
+        raise cannot_read(
+            folder, f"{file.name} holds {pages} page(s) of shape {shape}: a folder stack needs one 2-D plane a file"
+        )
+    return shape, dtype
 
 
 def _check_3d(path: Path, shape: tuple[int, ...]) -> None:

@@ -90,6 +90,9 @@ def read_volume(path: PathLike, *, n_bins: Optional[int] = None) -> Volume:
     path = Path(path)
     if not path.exists():
         raise cannot_read(path, "no such file or directory")
+    if not path.is_file() and not path.is_dir():
+        # Opening a FIFO waits for a writer forever; a device would be read without end.
+        raise cannot_read(path, "it is not a regular file (a FIFO, socket or device): give a volume file or folder")
     if chunked_readers.reads_chunked(path, n_bins):
         return chunked_readers.read_chunked(path)
     name = path.name if path.is_dir() else _stem(path)
