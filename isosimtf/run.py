@@ -4,6 +4,7 @@ import gc
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager, nullcontext
+from pathlib import Path
 from typing import Callable, Optional
 
 from IsoSimilarityTFLib.design import STAGES as DESIGN_STAGES
@@ -14,7 +15,7 @@ from IsoSimilarityTFLib.options import DEFAULT_OPTIONS
 from .chunked_readers import preview_step, read_preview
 from .console import ProgressPrinter
 from .inputs import DEFAULT_PHANTOM_SIZE, PathLike, input_info, load_input
-from .output_folder import check_output_path, create_output_folder, previous_outputs, remove_stale
+from .output_folder import OutputFolder, PreviousRun, check_output_path, check_outputs, previous_outputs, remove_stale
 from .outputs import (
     DEFAULT_BACKDROP,
     DEFAULT_RAY_CASTING,
@@ -22,6 +23,7 @@ from .outputs import (
     DEFAULT_VIEW,
     MAX_SIZE,
     MIN_SIZE,
+    OUTPUT_FILES,
     Preview,
     RunResult,
     write_classes_json,
@@ -32,6 +34,10 @@ from .rendering import BACKDROPS, RAY_CASTING, VIEW_DIRECTIONS, slicer_core_avai
 
 #: The command's stages, in order, as printed and as keys of ``timings_s`` in classes.json.
 STAGES = ("read", *DESIGN_STAGES, "write", "render")
+
+#: The outputs of a run without rendering, and of one with (the scene's files besides).
+DATA_ROLES = ("similarity_npy", "similarity_png", "classes_json", "vp_json", "vp")
+RENDER_ROLES = (*DATA_ROLES, "render_png", "classes_png", "segmentation")
 
 #: Bins above which affinity propagation (cost: bins^2 per iteration, up to 3 rounds) takes minutes, silently.
 SLOW_CLUSTERING_BINS = 1024
@@ -73,9 +79,10 @@ def run(
 ) -> RunResult:
     """Read ``source``, design its transfer function and fill ``outdir``.
 
-    The output path is checked first and the folder created only when there is something to write, so a run that
-    fails on its input leaves no folder behind. Files a previous run wrote there and this run does not (e.g. the
-    pictures on a ``--no-render`` re-run) are removed, with a warning; no other file is touched.
+    The output folder is checked, created and locked first, before any work (see :mod:`.output_folder`); a run that
+    fails before writing removes the folders it created. Files a previous run wrote there and this run does not
+    (e.g. the pictures on a ``--no-render`` re-run) are removed, with a warning, unless changed since; no other file
+    is touched.
 
     Args:
         source: a volume file, a DICOM folder, or ``"phantom"``.
@@ -94,7 +101,8 @@ def run(
         ray_casting: "cpu" (default, reproducible) or "gpu" (see ``RAY_CASTING``).
 
     Raises:
-        UsageError, VolumeReadError, ValueError: bad output path, input or option (a usage or input error).
+        UsageError, VolumeReadError, ValueError: bad output path, input or option (a usage or input error), another
+            run writing into ``outdir``, or an output there changed since a previous run wrote it.
         ClusteringError: affinity propagation failed.
         OutputError: a file cannot be written. RenderError: rendering failed (the data files are written by then).
     """
@@ -124,8 +132,46 @@ def run(
         progress = ProgressPrinter(len(STAGES), quiet=True)
     progress.total = len(STAGES) if render else len(STAGES) - 1  # known before reading: it never changes mid-run
     path = check_output_path(outdir)
-    previous = previous_outputs(path)
+    with OutputFolder(path):
+        previous = previous_outputs(path)
+        names = [OUTPUT_FILES[role] for role in (RENDER_ROLES if render else DATA_ROLES)]
+        check_outputs(path, names, previous, scene=render)
+        return _run_locked(
+            source,
+            path,
+            previous,
+            options,
+            warning,
+            warnings,
+            render,
+            progress,
+            view=view,
+            size=size,
+            phantom_size=phantom_size,
+            seed=seed,
+            backdrop=backdrop,
+            ray_casting=ray_casting,
+        )
 
+
+def _run_locked(
+    source: PathLike,
+    path: Path,
+    previous: PreviousRun,
+    options: dict,
+    warning: Callable[[str], None],
+    warnings: list[str],
+    render: bool,
+    progress: ProgressPrinter,
+    *,
+    view: str,
+    size: int,
+    phantom_size: int,
+    seed: int,
+    backdrop: str,
+    ray_casting: str,
+) -> RunResult:
+    """:func:`run` once the output folder is checked and locked: read, design, write, render."""
     # The pictures are made by a second process, started now so that its slow start overlaps reading and designing.
     renderer = RenderProcess(size=size, backdrop=backdrop, ray_casting=ray_casting) if render else nullcontext()
     with renderer:
@@ -149,7 +195,7 @@ def run(
 
         start = time.perf_counter()
         progress.stage("write", str(path))
-        create_output_folder(path)
+        result.kept = dict(previous.changed)  # changed since written: never touched, still recorded
         write_data_files(result)
         timings["write"] = time.perf_counter() - start
 
@@ -161,11 +207,18 @@ def run(
                 _render(renderer, result, step, view=view, size=size, progress=progress)
                 timings["render"] = time.perf_counter() - start
         finally:
-            removed = remove_stale(path, previous, result.written())
+            removed = remove_stale(path, previous.unchanged, result.written())
             if removed:
                 progress.finish()
                 names = ", ".join(removed)
                 warning(f"removed {len(removed)} file(s) of a previous run that this run did not write: {names}")
+            if previous.changed:
+                progress.finish()
+                names = ", ".join(sorted(previous.changed))
+                warning(
+                    f"kept {len(previous.changed)} file(s) of a previous run changed since it wrote them (not "
+                    f"removed): {names}"
+                )
             progress.finish()
             timings["total"] = time.perf_counter() - started
             write_classes_json(result)
