@@ -11,6 +11,7 @@ from IsoSimilarityTFLib.design import STAGES as DESIGN_STAGES
 from IsoSimilarityTFLib.design import design_transfer_function
 from IsoSimilarityTFLib.errors import RenderError, UsageError
 from IsoSimilarityTFLib.options import DEFAULT_OPTIONS
+from IsoSimilarityTFLib.value_range import robust_value_range
 
 from .chunked_readers import preview_step, read_preview
 from .console import ProgressPrinter
@@ -183,6 +184,12 @@ def _run_locked(
         info = input_info(source, volume)
         for message in _input_warnings(info, n_bins):
             warning(message)
+        if options.get("value_range") is None:
+            # Padding and outliers left out of the default range, as the Slicer module leaves them out.
+            robust = robust_value_range(volume.values)
+            if robust.excludes:
+                options = {**options, "value_range": robust.value_range}
+                warning(robust.warning("--range LOW HIGH"))
         step = preview_step(volume.shape) if render and info["read_lazily"] else None
         if step is not None and step > 1:
             warning(_preview_warning(volume.shape, volume.spacing, step))
