@@ -7,6 +7,9 @@ from contextlib import contextmanager, nullcontext
 from pathlib import Path
 from typing import Callable, Optional
 
+import numpy as np
+
+from IsoSimilarityTFLib.chunked import is_dask_array
 from IsoSimilarityTFLib.design import STAGES as DESIGN_STAGES
 from IsoSimilarityTFLib.design import design_transfer_function
 from IsoSimilarityTFLib.errors import RenderError, UsageError
@@ -44,6 +47,12 @@ RENDER_ROLES = (*DATA_ROLES, "render_png", "classes_png", "segmentation")
 SLOW_CLUSTERING_BINS = 1024
 #: Integer volumes with at most this many distinct values are taken for label maps.
 LABEL_MAP_VALUES = 16
+#: Share of neighbouring voxel pairs (along i, outside the most common value) holding equal values above which an
+#: integer volume is piecewise constant: a label map. Measured: AAL 0.89, Harvard-Oxford 0.91, JHU white matter
+#: 0.75; the Colin27 T1 0.09, its skull-stripped brain 0.12, the head CT 0.06, the phantom 0.01.
+LABEL_MAP_EQUAL_NEIGHBOURS = 0.5
+#: Most distinct values of a label map (an atlas has tens to hundreds of labels).
+LABEL_MAP_MAX_LABELS = 1024
 
 
 @contextmanager
@@ -116,6 +125,16 @@ def run(
     if ray_casting not in RAY_CASTING:
         raise UsageError(f"ray casting must be one of {', '.join(RAY_CASTING)}; got {ray_casting!r}")
     options = dict(options or {})
+    max_iter = options.get("max_iter", DEFAULT_OPTIONS["max_iter"])
+    convergence_iter = options.get("convergence_iter", DEFAULT_OPTIONS["convergence_iter"])
+    # Only a convergence_iter chosen (not the default) is refused: the default with a small max_iter is a run
+    # that stops early, which the clustering reports itself.
+    chosen = convergence_iter != DEFAULT_OPTIONS["convergence_iter"]
+    if chosen and max_iter is not None and convergence_iter is not None and convergence_iter > max_iter:
+        raise UsageError(
+            f"--convergence-iter {convergence_iter} is more than --max-iter {max_iter}: affinity propagation could "
+            "never count that many stable iterations; lower --convergence-iter or raise --max-iter"
+        )
     warnings: list[str] = []
 
     def warning(message: str) -> None:
@@ -182,7 +201,7 @@ def _run_locked(
         volume = load_input(source, phantom_size=phantom_size, seed=seed, n_bins=n_bins)
         timings = {"read": time.perf_counter() - started}
         info = input_info(source, volume)
-        for message in _input_warnings(info, n_bins):
+        for message in _input_warnings(info, n_bins, volume.values):
             warning(message)
         if options.get("value_range") is None:
             # Padding and outliers left out of the default range, as the Slicer module leaves them out.
@@ -278,16 +297,37 @@ def _ordinal(number: int) -> str:
     return f"{number}{suffix}"
 
 
-def _input_warnings(info: dict, n_bins: int) -> list[str]:
+def label_count(values: np.ndarray) -> Optional[int]:
+    """The number of labels of an integer volume that is a label map (piecewise constant, few values), else None.
+
+    Taken on every 4th plane (k): the share of neighbouring voxel pairs along i that hold equal values, leaving out
+    pairs of the most common value (the background), above :data:`LABEL_MAP_EQUAL_NEIGHBOURS`; or a span of at
+    most :data:`LABEL_MAP_VALUES` values.
+    """
+    if not np.issubdtype(values.dtype, np.integer) or is_dask_array(values):
+        return None
+    planes = values[::4]
+    labels, counts = np.unique(planes, return_counts=True)
+    if labels.size < 2 or labels.size > LABEL_MAP_MAX_LABELS:
+        return None
+    if int(labels[-1]) - int(labels[0]) < LABEL_MAP_VALUES:
+        return int(labels.size)
+    background = labels[np.argmax(counts)]
+    left, right = planes[:, :, :-1], planes[:, :, 1:]
+    counted = (left != background) | (right != background)
+    equal = np.count_nonzero((left == right) & counted) / max(int(np.count_nonzero(counted)), 1)
+    return int(labels.size) if equal > LABEL_MAP_EQUAL_NEIGHBOURS else None
+
+
+def _input_warnings(info: dict, n_bins: int, values: Optional[np.ndarray] = None) -> list[str]:
     """Warnings about the input that the design cannot fix: a label map, or a clustering that will take minutes."""
     warnings = []
-    low, high = info["value_min"], info["value_max"]
-    integers = low is not None and info["dtype"].startswith(("int", "uint"))  # no range of a volume read lazily
-    if integers and low < high <= low + LABEL_MAP_VALUES - 1:  # constant: an error
+    labels = None if values is None else label_count(values)
+    if labels is not None:
         warnings.append(
-            f"the volume holds at most {int(high - low + 1)} distinct integer values ({low:g} to {high:g}): a label "
-            "map? Isovalue similarity groups intensities of a continuous scan; label maps are better shown with "
-            "their own colour table"
+            f"the volume looks like a label map ({labels} distinct integer values, piecewise constant): isovalue "
+            "similarity groups intensities of a continuous scan; label maps are better shown with their own colour "
+            "table (if affinity propagation does not converge on it, use --preference minimum)"
         )
     if n_bins > SLOW_CLUSTERING_BINS:
         warnings.append(
