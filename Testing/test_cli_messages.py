@@ -50,3 +50,29 @@ def test_sizes_are_never_zero_mib() -> None:
     assert format_bytes(3 * 1024 + 300) == "3.3 KiB"
     assert format_bytes(41 * 2**20) == "41 MiB"
     assert format_bytes(1.5 * 2**30) == "1.5 GiB"
+
+
+@pytest.mark.parametrize(
+    ("name", "header", "field"),
+    [
+        ("z.mha", "ObjectType = Image\nNDims = 3\nDimSize = 5 4 3\nElementSpacing = 0 1 1\nElementType = MET_SHORT\n"
+                  "ElementDataFile = LOCAL\n", "ElementSpacing: 0 1 1"),
+        ("z.nrrd", "NRRD0004\ntype: short\ndimension: 3\nsizes: 5 4 3\nspacings: 1 0 1\nendian: little\n"
+                   "encoding: raw\n\n", "spacings: 1 0 1"),
+    ],
+)  # fmt: skip
+def test_zero_spacing_is_named_not_called_another_format(tmp_path: Path, capfd, name: str, header: str, field) -> None:
+    """Before: "not a MetaImage" for a MetaImage whose ElementSpacing holds a zero."""
+    path = tmp_path / name
+    path.write_bytes(header.encode() + bytes(2 * 5 * 4 * 3))
+    assert cli.main([str(path), "-o", str(tmp_path / "out"), "--no-render", "-q"]) == 2
+    err = capfd.readouterr().err
+    assert f"Cannot read '{path}': its header gives a zero voxel size ({field})" in err and err.count("\n") == 1
+
+
+def test_more_tissues_than_bins_is_refused_before_the_design(tmp_path: Path, capfd) -> None:
+    """Before: --tissues 999 was refused only after the whole design."""
+    argv = ["phantom", "-o", str(tmp_path / "out"), "--tissues", "999", "--no-render"]
+    assert cli.main(argv) == 2
+    err = capfd.readouterr().err
+    assert "--tissues 999 is more than --bins 256" in err and "[1/" not in err

@@ -148,20 +148,67 @@ def _skip_lines(data: Path, start: int, count: int) -> int:
     return offset
 
 
-def _nrrd(path: Path, head: bytes) -> Optional[StoredVoxels]:
+def _nrrd_fields(head: bytes) -> tuple[dict[str, str], Optional[int]]:
+    """The fields of a NRRD header (lower-case keys) and the offset after its blank line (None: not found)."""
     lines = _lines(head)
-    if not lines or not lines[0][0].startswith("NRRD"):
-        return None
     fields: dict[str, str] = {}
-    header_end = None
+    if not lines or not lines[0][0].startswith("NRRD"):
+        return fields, None
     for text, end in lines[1:]:
         if not text.strip():
-            header_end = end
-            break
+            return fields, end
         if text.startswith("#") or ":=" in text or ":" not in text:
             continue
         key, _, value = text.partition(":")
         fields[key.strip().lower()] = value.strip()
+    return fields, None
+
+
+def _metaimage_fields(head: bytes) -> tuple[dict[str, str], Optional[int]]:
+    """The fields of a MetaImage header and the offset after its ``ElementDataFile`` line (None: not found)."""
+    fields: dict[str, str] = {}
+    for text, end in _lines(head):
+        key, separator, value = text.partition("=")
+        if not separator:
+            continue
+        fields[key.strip()] = value.strip()
+        if key.strip() == "ElementDataFile":
+            return fields, end
+    return fields, None
+
+
+def spacing_problem(path: Path) -> Optional[str]:
+    """What is wrong with the voxel size a NRRD or MetaImage header gives, when Slicer's reader refused it: a zero
+    spacing (ITK then finds no reader for the file, which says nothing of the cause). None if nothing is found."""
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(MAX_HEADER_BYTES)
+    except OSError:
+        return None
+    lower = path.name.lower()
+    if lower.endswith((".nrrd", ".nhdr")):
+        fields, _ = _nrrd_fields(head)
+        named = [("spacings", fields.get("spacings", ""))]
+        named += [("space directions", d) for d in fields.get("space directions", "").split(")") if d.strip()]
+    elif lower.endswith((".mha", ".mhd")):
+        fields, _ = _metaimage_fields(head)
+        named = [(key, fields.get(key, "")) for key in ("ElementSpacing", "ElementSize")]
+    else:
+        return None
+    for name, text in named:
+        try:
+            numbers = [float(v) for v in text.replace("(", " ").replace(",", " ").split() if v.lower() != "nan"]
+        except ValueError:
+            continue
+        if numbers and (0.0 in numbers if name != "space directions" else not any(numbers)):
+            return f"its header gives a zero voxel size ({name}: {text.strip(' (')}): every axis needs its size in mm"
+    return None
+
+
+def _nrrd(path: Path, head: bytes) -> Optional[StoredVoxels]:
+    fields, header_end = _nrrd_fields(head)
+    if not fields:
+        return None
     sizes = [int(s) for s in fields.get("sizes", "").split()]
     kind = _NRRD_TYPES.get(fields.get("type", "").lower())
     detached = fields.get("data file", fields.get("datafile"))
@@ -187,16 +234,7 @@ def _nrrd(path: Path, head: bytes) -> Optional[StoredVoxels]:
 
 
 def _metaimage(path: Path, head: bytes) -> Optional[StoredVoxels]:
-    fields: dict[str, str] = {}
-    header_end = None
-    for text, end in _lines(head):
-        key, separator, value = text.partition("=")
-        if not separator:
-            continue
-        fields[key.strip()] = value.strip()
-        if key.strip() == "ElementDataFile":
-            header_end = end
-            break
+    fields, header_end = _metaimage_fields(head)
     if header_end is None:
         return None
     sizes = [int(s) for s in fields.get("DimSize", "").split()]

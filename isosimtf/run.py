@@ -135,6 +135,10 @@ def run(
             f"--convergence-iter {convergence_iter} is more than --max-iter {max_iter}: affinity propagation could "
             "never count that many stable iterations; lower --convergence-iter or raise --max-iter"
         )
+    tissues, n_bins = options.get("tissues"), options.get("n_bins", DEFAULT_OPTIONS["n_bins"])
+    if isinstance(tissues, int) and not isinstance(tissues, bool) and n_bins is not None and tissues > n_bins:
+        # The classes (at most one per bin) are known only after the design; more tissues than bins never fit.
+        raise UsageError(f"--tissues {tissues} is more than --bins {n_bins}: there can be at most one tissue per bin")
     warnings: list[str] = []
 
     def warning(message: str) -> None:

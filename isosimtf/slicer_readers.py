@@ -16,6 +16,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from .headers import spacing_problem
 from .read_errors import cannot_read, captured_native_output, first_message, itk_reason
 
 #: File suffixes read by Slicer's ITK-based reader (lower case, longest first); a DICOM file may have any suffix.
@@ -105,7 +106,7 @@ def read_header(path: Path, files: tuple[Path, ...]) -> ImageHeader:
         reader.UpdateInformation()
     extent = reader.GetOutputInformation(0).Get(vtkStreamingDemandDrivenPipeline.WHOLE_EXTENT())
     if reader.GetErrorCode() or extent is None:
-        raise cannot_read(path, _reason(files[0], texts))
+        raise cannot_read(path, spacing_problem(files[0]) or _reason(files[0], texts))
     dimensions = tuple(int(extent[2 * a + 1] - extent[2 * a] + 1) for a in range(3))
     dtype = np.dtype(get_numpy_array_type(reader.GetOutputScalarType()))
     matrix = reader.GetRasToIjkMatrix()
