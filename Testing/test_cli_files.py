@@ -145,3 +145,26 @@ def test_a_killed_runs_leftovers_are_cleared_by_the_next_run(tmp_path: Path, cap
     (outdir / "notes.txt").write_text("mine")
     assert _run([*PHANTOM, "--no-render", "-o", outdir], capfd)[0] == 0
     assert _no_temporary_files(outdir) and (outdir / "notes.txt").read_text() == "mine"
+
+
+def test_a_full_disk_leaves_the_previous_files_whole(tmp_path: Path, capfd) -> None:
+    """A real failed write: the isosimtf process may write files of at most 100 KB (RLIMIT_FSIZE, as a full disk
+    fails a write), so similarity.npy (512 KiB) cannot be written. One line, no part file, the old file whole."""
+    import resource
+    import signal
+    import subprocess
+    import sys
+
+    outdir = tmp_path / "out"
+    assert _run([*PHANTOM, "--no-render", "-o", outdir], capfd)[0] == 0
+    before = {p.name: p.read_bytes() for p in outdir.iterdir()}
+
+    def limit() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (100_000, 100_000))
+
+    argv = [sys.executable, "-m", "isosimtf", *PHANTOM, "--no-render", "--bins", "128", "-o", str(outdir)]
+    done = subprocess.run(argv, capture_output=True, text=True, preexec_fn=limit, timeout=300)
+    assert done.returncode == 1 and done.stderr.count("\n") == 1, done.stderr
+    assert done.stderr.startswith(f"isosimtf: error: cannot write '{outdir / 'similarity.npy'}': ")
+    assert {p.name: p.read_bytes() for p in outdir.iterdir()} == before and _no_temporary_files(outdir)
