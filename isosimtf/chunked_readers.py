@@ -58,17 +58,20 @@ def is_chunked_format(path: Path) -> bool:
     return path.name.lower().endswith(_TIFF_SUFFIXES)
 
 
-def reads_chunked(path: Path, n_bins: Optional[int]) -> bool:
+def reads_chunked(path: Path, n_bins: Optional[int], stored: Optional[StoredVoxels] = None) -> bool:
     """Whether ``path`` is read lazily: a Zarr or TIFF input, or a raw NRRD / MetaImage too large for memory.
 
     Too large: the in-memory read and design (:func:`~IsoSimilarityTFLib.memory.design_memory_bytes` with the voxels
     themselves) would need more than half the memory available; the other half stays for the rest of the machine.
+
+    Args:
+        stored: the file's :func:`.headers.stored_voxels`, when the caller has it (else it is read here).
     """
     if is_chunked_format(path):
         return True
     if not path.is_file() or not path.name.lower().endswith(_RAW_SUFFIXES):
         return False
-    stored = stored_voxels(path)
+    stored = stored if stored is not None else stored_voxels(path)
     available = available_memory_bytes()
     if stored is None or not stored.raw or available is None:
         return False
@@ -76,7 +79,7 @@ def reads_chunked(path: Path, n_bins: Optional[int]) -> bool:
     return needed > available // 2
 
 
-def read_chunked(path: Path) -> Volume:
+def read_chunked(path: Path, stored: Optional[StoredVoxels] = None) -> Volume:
     """Open ``path`` lazily (see the module docstring) as a :class:`~.volume.Volume` holding a dask array.
 
     Raises:
@@ -89,7 +92,7 @@ def read_chunked(path: Path) -> Volume:
         return Volume(values, spacing, name=name)
     if is_chunked_format(path):
         return Volume(_tiff_volume(path), name=name)
-    stored = stored_voxels(path)
+    stored = stored if stored is not None else stored_voxels(path)
     if stored is None or not stored.raw:
         raise cannot_read(
             path, "its voxels are not stored raw (uncompressed): it cannot be read a few planes at a time"

@@ -93,8 +93,11 @@ def read_volume(path: PathLike, *, n_bins: Optional[int] = None) -> Volume:
     if not path.is_file() and not path.is_dir():
         # Opening a FIFO waits for a writer forever; a device would be read without end.
         raise cannot_read(path, "it is not a regular file (a FIFO, socket or device): give a volume file or folder")
-    if chunked_readers.reads_chunked(path, n_bins):
-        return chunked_readers.read_chunked(path)
+    # The storage fields of a NRRD / MetaImage header, parsed once for the lazy-or-not choice, the size bound and
+    # the exact read of 64-bit integers.
+    stored = headers.stored_voxels(path) if path.name.lower().endswith(_NRRD_OR_METAIMAGE) else None
+    if chunked_readers.reads_chunked(path, n_bins, stored):
+        return chunked_readers.read_chunked(path, stored)
     name = path.name if path.is_dir() else _stem(path)
     if path.is_dir() or slicer_readers.is_dicom_file(path):
         return _read_with_slicer(path, slicer_readers.dicom_series(path), name, n_bins)
@@ -106,7 +109,7 @@ def read_volume(path: PathLike, *, n_bins: Optional[int] = None) -> Volume:
     if lower.endswith(".vti"):
         return _read_vti(path, name, n_bins)
     if lower.endswith(slicer_readers.ITK_SUFFIXES):
-        return _read_with_slicer(path, (path,), name, n_bins)
+        return _read_with_slicer(path, (path,), name, n_bins, stored)
     raise cannot_read(
         path, f"unsupported file type '{''.join(path.suffixes) or path.name}' (expected {SUPPORTED_TEXT})"
     )
@@ -168,9 +171,16 @@ def _check_size(
     check_memory(tuple(int(d) for d in dimensions[::-1]), n_bins, input_bytes=voxel_bytes)
 
 
-def _read_with_slicer(path: Path, files: tuple[Path, ...], name: str, n_bins: Optional[int]) -> Volume:
+def _read_with_slicer(
+    path: Path,
+    files: tuple[Path, ...],
+    name: str,
+    n_bins: Optional[int],
+    stored: Optional[headers.StoredVoxels] = None,
+) -> Volume:
+    """Read with Slicer's storage node, or (64-bit integers) exactly from the raw file; ``stored``: the storage
+    fields of a NRRD / MetaImage header (None for other formats and DICOM)."""
     header = slicer_readers.read_header(path, files)
-    stored = headers.stored_voxels(path) if len(files) == 1 else None
     nifti = path.name.lower().endswith((".nii", ".nii.gz"))
     if stored is not None:
         on_disk = stored.stored_bytes
