@@ -168,3 +168,17 @@ def test_a_full_disk_leaves_the_previous_files_whole(tmp_path: Path, capfd) -> N
     assert done.returncode == 1 and done.stderr.count("\n") == 1, done.stderr
     assert done.stderr.startswith(f"isosimtf: error: cannot write '{outdir / 'similarity.npy'}': ")
     assert {p.name: p.read_bytes() for p in outdir.iterdir()} == before and _no_temporary_files(outdir)
+
+
+@needs_slicer
+def test_a_render_that_fails_midway_still_records_its_complete_pictures(tmp_path: Path, capfd) -> None:
+    """Before: pictures the render process had written were recorded only when it finished, so a failure or Ctrl+C
+    left them unrecorded. Here render.png cannot be written (a folder holds its name), after classes.png was."""
+    outdir = tmp_path / "out"
+    (outdir / "render.png").mkdir(parents=True)
+    code, err = _run([*PHANTOM, "--size", "64", "-o", outdir], capfd)
+    assert code == 1 and "rendering failed" in err
+    document = _document(outdir)
+    assert "classes.png" in document["written"] and "render.png" not in document["written"]
+    assert document["written_stamps"]["classes.png"][0] == (outdir / "classes.png").stat().st_size
+    assert _no_temporary_files(outdir)
