@@ -90,20 +90,25 @@ def _sample(values: Any, sample_voxels: int) -> np.ndarray:
 
 
 def _min_max(values: Any, above: float = -np.inf, below: float = np.inf) -> tuple[float, float]:
-    """Exact minimum and maximum of the voxels strictly between ``above`` and ``below``."""
+    """Exact minimum and maximum of the voxels strictly between ``above`` and ``below`` (one pass, in the volume's
+    own dtype: a float64 copy of a large volume would cost more than the pass)."""
+    limits = np.iinfo(values.dtype) if np.issubdtype(values.dtype, np.integer) else np.finfo(values.dtype)
     if is_dask_array(values):
         import dask.array as da
 
-        inside = (values > above) & (values < below)
-        low, high = da.compute(da.where(inside, values, np.inf).min(), da.where(inside, values, -np.inf).max())
+        if above == -np.inf and below == np.inf:
+            low, high = da.compute(values.min(), values.max())
+        else:
+            inside = (values > above) & (values < below)
+            low, high = da.compute(
+                da.where(inside, values, limits.max).min(), da.where(inside, values, limits.min).max()
+            )
         return float(low), float(high)
     if above == -np.inf and below == np.inf:
         return float(np.min(values)), float(np.max(values))
     inside = (values > above) & (values < below)
-    limits = np.iinfo(values.dtype) if np.issubdtype(values.dtype, np.integer) else np.finfo(values.dtype)
-    return float(np.min(values, where=inside, initial=limits.max)), float(
-        np.max(values, where=inside, initial=limits.min)
-    )
+    low = np.min(values, where=inside, initial=limits.max)
+    return float(low), float(np.max(values, where=inside, initial=limits.min))
 
 
 def _count(values: Any, mask_of: Any) -> int:
