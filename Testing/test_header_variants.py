@@ -84,6 +84,11 @@ def _variants() -> dict:
                      + v.astype(">i2").tobytes()}, "<i2", identity),
         "mha-header-size-minus-1": ({"v.mha": (mha + "HeaderSize = -1\nElementDataFile = LOCAL\n").encode()
                                      + b"padding" + raw}, "<i2", identity),
+        "mha-header-size-exact": ({"v.mha": (mha + "HeaderSize = {end}\nElementDataFile = LOCAL\n").format(
+                                   end=len(mha) + len("HeaderSize = 999\nElementDataFile = LOCAL\n")).encode() + raw},
+                                  "<i2", identity),
+        "nrrd-attached-byte-skip": ({"v.nrrd": (nrrd + "byte skip: 6\n\n").encode() + b"abcdef" + raw}, "<i2",
+                                    identity),
         "mhd-header-size": ({"v.mhd": (mha + "HeaderSize = 9\nElementDataFile = v.raw\n").encode(),
                              "v.raw": b"123456789" + raw}, "<i2", identity),
         "mhd-header-size-minus-1": ({"v.mhd": (mha + "HeaderSize = -1\nElementDataFile = v.raw\n").encode(),
@@ -176,3 +181,15 @@ def test_compressed_int64_is_refused_rather_than_rounded(tmp_path: Path) -> None
     path.write_bytes(header.encode() + gzip.compress(_values("<i8").tobytes()))
     with pytest.raises(VolumeReadError, match="int64 voxels, which Slicer's reader rounds to float32"):
         read_volume(path)
+
+
+def test_a_local_header_size_inside_the_header_is_refused(tmp_path: Path) -> None:
+    """MetaIO reads a LOCAL file from byte HeaderSize of the file itself: HeaderSize = 4 read the header as voxels."""
+    path = tmp_path / "v.mha"
+    header = MHA.format(type="MET_SHORT", I=NI, J=NJ, K=NK) + "HeaderSize = 4\nElementDataFile = LOCAL\n"
+    path.write_bytes(header.encode() + b"abcd" + _values().tobytes())
+    for read in (read_volume, chunked_readers.read_chunked):
+        with pytest.raises(
+            VolumeReadError, match="HeaderSize = 4 with ElementDataFile = LOCAL, but its header ends at"
+        ):
+            read(path)

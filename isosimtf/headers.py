@@ -263,7 +263,14 @@ def _metaimage(path: Path, head: bytes) -> Optional[StoredVoxels]:
         return StoredVoxels(data, shape, dtype, False, None, stored)
     nbytes = int(np.prod(shape, dtype=np.float64)) * dtype.itemsize
     skip = int(fields.get("HeaderSize", 0))
-    if local and skip != -1:
-        skip = 0  # MetaIO skips HeaderSize bytes of a detached data file only
+    if local and skip > 0:
+        if skip != header_end:
+            # MetaIO then reads from byte HeaderSize of the file itself: inside the header, or past the voxels.
+            raise cannot_read(
+                path,
+                f"it says HeaderSize = {skip} with ElementDataFile = LOCAL, but its header ends at byte {header_end}: "
+                "Slicer's reader would read from byte {skip}; remove the HeaderSize line".replace("{skip}", str(skip)),
+            )
+        skip = 0
     offset = _raw_offset(path, data, header_end if local else 0, nbytes, skip)
     return StoredVoxels(data, shape, dtype, True, offset, stored)
