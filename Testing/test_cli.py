@@ -617,7 +617,8 @@ def test_useless_results_are_refused_or_warned(tmp_path: Path, capfd) -> None:
     volume[6:18, 6:18, 6:18], volume[9:15, 9:15, 9:15] = 1, 2
     np.save(labels, volume)
     code, _, err = _run([labels, "-o", tmp_path / "b", "--no-render", "-q"], capfd)
-    assert code == 0 and "isosimtf: warning: the volume looks like a label map (at least 3 distinct integer values" in err
+    assert code == 0
+    assert "isosimtf: warning: the volume looks like a label map (at least 3 distinct integer values" in err
     design = design_transfer_function(head_phantom(16).values)
     for item in design.classes:
         design.set_class(item.id, visible=False)

@@ -23,7 +23,7 @@ def test_atlases_with_many_labels_are_recognised(atlas: str) -> None:
     if not Path(atlas).is_file():
         pytest.skip("Debian package mricron-data is not installed")
     values = read_volume(atlas).values
-    assert run.label_count(values) == np.unique(values[::8]).size > 16
+    assert run.label_count(values) == np.unique(values[:: min(8, values.shape[0] // 32)]).size > 16
 
 
 def test_scans_are_not_label_maps() -> None:

@@ -304,13 +304,13 @@ def _ordinal(number: int) -> str:
 def label_count(values: np.ndarray) -> Optional[int]:
     """The number of labels of an integer volume that is a label map (piecewise constant, few values), else None.
 
-    Taken on every 8th plane (k): the share of neighbouring voxel pairs along i that hold equal values, leaving out
+    Taken on every s-th plane (k; s at most 8, and at least 32 planes): the share of neighbouring voxel pairs along i that hold equal values, leaving out
     pairs of the most common value (the background), above :data:`LABEL_MAP_EQUAL_NEIGHBOURS`; or a span of at
     most :data:`LABEL_MAP_VALUES` values.
     """
     if not np.issubdtype(values.dtype, np.integer) or is_dask_array(values):
         return None
-    planes = values[::8]
+    planes = values[:: max(1, min(8, values.shape[0] // 32))]  # at least 32 planes: small labels stay in
     labels, counts = np.unique(planes, return_counts=True)
     if labels.size < 2 or labels.size > LABEL_MAP_MAX_LABELS:
         return None
