@@ -302,11 +302,11 @@ def _ordinal(number: int) -> str:
 
 
 def label_count(values: np.ndarray) -> Optional[int]:
-    """The number of labels of an integer volume that is a label map (piecewise constant, few values), else None.
+    """The number of labels (at least: those seen) of an integer volume that is a label map, else None.
 
-    Taken on every s-th plane (k; s at most 8, and at least 32 planes): the share of neighbouring voxel pairs along i that hold equal values, leaving out
-    pairs of the most common value (the background), above :data:`LABEL_MAP_EQUAL_NEIGHBOURS`; or a span of at
-    most :data:`LABEL_MAP_VALUES` values.
+    Taken on every s-th plane (k; s at most 8, and at least 32 planes): a label map is piecewise constant, the share
+    of neighbouring voxel pairs along i that hold equal values, leaving out pairs of the most common value (the
+    background), above :data:`LABEL_MAP_EQUAL_NEIGHBOURS`; or it spans at most :data:`LABEL_MAP_VALUES` values.
     """
     if not np.issubdtype(values.dtype, np.integer) or is_dask_array(values):
         return None
