@@ -607,3 +607,26 @@ def test_truncated_scaled_nifti_is_still_refused(tmp_path: Path, capfd) -> None:
     assert f"truncated: {stored.nbytes} bytes of voxel data expected, {stored.nbytes - 2} found" in _read_error(
         tmp_path / "s.nii", capfd
     )
+
+
+@pytest.mark.parametrize(
+    ("name", "reader"),
+    [("v.nrrd", "NRRD, MetaImage or NIfTI"), ("v.mha", "NRRD, MetaImage or NIfTI"),
+     ("v.nii.gz", "NRRD, MetaImage or NIfTI"), ("v.vti", "VTK image"), ("v.npy", ".npy")],
+)  # fmt: skip
+def test_each_format_has_one_reader(tmp_path: Path, name: str, reader: str) -> None:
+    from isosimtf.volume_io import reader_for
+
+    write_volume(_volume(False), tmp_path / name)
+    assert reader_for(tmp_path / name).name == reader
+    (tmp_path / "notes.txt").write_text("not a volume")
+    assert reader_for(tmp_path / "notes.txt") is None
+
+
+def test_the_debian_volumes_have_their_readers() -> None:
+    from isosimtf.volume_io import reader_for
+
+    for name, reader in (("head-ct", "InVesalius"), ("brain-mri", "NRRD, MetaImage or NIfTI")):
+        path = real_dataset_path(name)
+        if path is not None:
+            assert reader_for(path).name == reader

@@ -1,5 +1,8 @@
 """Read a scalar volume with its geometry, the way Slicer reads it, refusing from its header what would not fit.
 
+One reader per format (:data:`READERS`, each a :class:`Reader`: a probe and a read that checks the header and the
+size before allocating), behind one entry point, :func:`read_volume`.
+
 Every reader returns a :class:`Volume`: the voxel values as a ``(K, J, I)`` array (slowest axis first, like
 ``slicer.util.arrayFromVolume``) and the spacing, origin and axis directions in Slicer's RAS world.
 
@@ -27,7 +30,7 @@ import tarfile
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional, Union
+from typing import Callable, Optional, Union
 
 import numpy as np
 
@@ -41,7 +44,16 @@ from .volume import Volume
 
 PathLike = Union[str, "os.PathLike[str]"]
 
-__all__ = ["SUPPORTED_TEXT", "Volume", "VolumeReadError", "read_volume", "real_dataset_path"]
+__all__ = [
+    "READERS",
+    "SUPPORTED_TEXT",
+    "Reader",
+    "Volume",
+    "VolumeReadError",
+    "read_volume",
+    "reader_for",
+    "real_dataset_path",
+]
 
 SUPPORTED_TEXT = (
     ".nrrd, .nhdr, .mha, .mhd, .nii, .nii.gz, .vti, .npy, .inv3, .tif, .tiff, a Zarr store, a folder of TIFF planes, "
@@ -93,26 +105,49 @@ def read_volume(path: PathLike, *, n_bins: Optional[int] = None) -> Volume:
     if not path.is_file() and not path.is_dir():
         # Opening a FIFO waits for a writer forever; a device would be read without end.
         raise cannot_read(path, "it is not a regular file (a FIFO, socket or device): give a volume file or folder")
+    reader = reader_for(path)
+    if reader is None:
+        raise cannot_read(
+            path, f"unsupported file type '{''.join(path.suffixes) or path.name}' (expected {SUPPORTED_TEXT})"
+        )
+    return reader.read(path, path.name if path.is_dir() else _stem(path), n_bins)
+
+
+@dataclass(frozen=True)
+class Reader:
+    """One input format behind the one interface every read goes through (:func:`read_volume`).
+
+    Attributes:
+        name: the format, as messages name it.
+        probe: whether a path (an existing file or folder) is of this format; cheap (a suffix, a magic number).
+        read: ``read(path, volume name, n_bins)`` -> :class:`Volume`. It reads the header once, checks from it the
+            size (a 3-D scalar volume that the file can hold and the memory fits, :func:`_check_size`) before any
+            voxel is allocated, then reads the voxels (into memory, or lazily as a dask array when the format or
+            the size asks for it), or raises one :class:`VolumeReadError` (or ``InsufficientMemoryError``) line.
+    """
+
+    name: str
+    probe: Callable[[Path], bool]
+    read: Callable[[Path, str, Optional[int]], Volume]
+
+
+def reader_for(path: Path) -> Optional[Reader]:
+    """The reader of an existing file or folder (the first of :data:`READERS` whose probe accepts it), or None."""
+    return next((reader for reader in READERS if reader.probe(path)), None)
+
+
+def _read_nrrd_metaimage_nifti(path: Path, name: str, n_bins: Optional[int]) -> Volume:
+    """NRRD, MetaImage, NIfTI: Slicer's reader, or the lazy raw reader for a raw file too large for memory."""
     # The storage fields of a NRRD / MetaImage header, parsed once for the lazy-or-not choice, the size bound and
     # the exact read of 64-bit integers.
     stored = headers.stored_voxels(path) if path.name.lower().endswith(_NRRD_OR_METAIMAGE) else None
     if chunked_readers.reads_chunked(path, n_bins, stored):
         return chunked_readers.read_chunked(path, stored)
-    name = path.name if path.is_dir() else _stem(path)
-    if path.is_dir() or slicer_readers.is_dicom_file(path):
-        return _read_with_slicer(path, slicer_readers.dicom_series(path), name, n_bins)
-    lower = path.name.lower()
-    if lower.endswith(".npy"):
-        return _read_npy(path, name, n_bins)
-    if lower.endswith(".inv3"):
-        return _read_inv3(path, name, n_bins)
-    if lower.endswith(".vti"):
-        return _read_vti(path, name, n_bins)
-    if lower.endswith(slicer_readers.ITK_SUFFIXES):
-        return _read_with_slicer(path, (path,), name, n_bins, stored)
-    raise cannot_read(
-        path, f"unsupported file type '{''.join(path.suffixes) or path.name}' (expected {SUPPORTED_TEXT})"
-    )
+    return _read_with_slicer(path, (path,), name, n_bins, stored)
+
+
+def _suffix(*suffixes: str) -> Callable[[Path], bool]:
+    return lambda path: path.is_file() and path.name.lower().endswith(suffixes)
 
 
 def real_dataset_path(name: str) -> Optional[Path]:
@@ -417,3 +452,20 @@ def _member_bytes(archive: tarfile.TarFile, member: tarfile.TarInfo) -> bytes:
     if len(data) != member.size:
         raise EOFError(f"{member.name} is truncated")
     return data
+
+
+#: Every input format, probed in this order (a DICOM file may have any suffix, so it comes before the suffixes).
+READERS: tuple[Reader, ...] = (
+    Reader(
+        "Zarr or TIFF", chunked_readers.is_chunked_format, lambda path, name, n_bins: chunked_readers.read_chunked(path)
+    ),
+    Reader(
+        "DICOM",
+        lambda path: path.is_dir() or slicer_readers.is_dicom_file(path),
+        lambda path, name, n_bins: _read_with_slicer(path, slicer_readers.dicom_series(path), name, n_bins),
+    ),
+    Reader(".npy", _suffix(".npy"), _read_npy),
+    Reader("InVesalius", _suffix(".inv3"), _read_inv3),
+    Reader("VTK image", _suffix(".vti"), _read_vti),
+    Reader("NRRD, MetaImage or NIfTI", _suffix(*slicer_readers.ITK_SUFFIXES), _read_nrrd_metaimage_nifti),
+)
