@@ -11,7 +11,7 @@ from volume_writers import write_volume
 
 from IsoSimilarityTFLib import memory
 from IsoSimilarityTFLib.chunked import is_dask_array
-from isosimtf import chunked_readers, cli, run
+from isosimtf import chunked_readers, cli, headers, run
 from isosimtf.phantom import head_phantom
 from isosimtf.rendering import slicer_core_available
 from isosimtf.volume_io import Volume, read_volume
@@ -127,7 +127,7 @@ def test_the_preview_is_every_step_th_voxel_in_the_same_space(tmp_path: Path, na
 
 def test_compressed_files_are_not_read_lazily(tmp_path: Path) -> None:
     write_volume(geometry_volume(volume_values()), tmp_path / "v.nrrd", compress=True)
-    assert chunked_readers.raw_layout(tmp_path / "v.nrrd") is None
+    assert not headers.stored_voxels(tmp_path / "v.nrrd").raw
     assert not chunked_readers.reads_chunked(tmp_path / "v.nrrd", 256)
     with pytest.raises(ValueError, match="not stored raw"):
         chunked_readers.read_chunked(tmp_path / "v.nrrd")
@@ -179,6 +179,7 @@ def test_tiff_file_and_folder_of_planes(tmp_path: Path) -> None:
 def _classes_json(outdir: Path) -> dict:
     data = json.loads((outdir / "classes.json").read_text())
     data.pop("timings_s")
+    data.pop("written_stamps")  # modification times: the run's own, like its timings
     data.pop("input")
     return data
 
@@ -291,3 +292,41 @@ def test_a_lazy_volume_small_enough_is_pictured_whole(tmp_path: Path, monkeypatc
     assert document["input"]["read_lazily"] and document["input"]["preview"]["step"] == 1
     for name in ("render.png", "classes.png", *PREVIEW_SKIPPED):
         assert (tmp_path / "out" / name).is_file(), name
+
+
+def test_tiff_planes_are_stacked_in_natural_order(tmp_path: Path) -> None:
+    """plane_0 .. plane_11 were stacked in text order (0, 1, 10, 11, 2, ...): a scrambled volume (issue 18, item 8)."""
+    values = head_phantom(16, seed=0).values[:12]
+    folder = tmp_path / "planes"
+    folder.mkdir()
+    for k, plane in enumerate(values):
+        tifffile.imwrite(folder / f"plane_{k}.tif", plane)
+    np.testing.assert_array_equal(np.asarray(read_volume(folder).values), values)
+
+
+def test_tiff_planes_of_different_sizes_are_refused_in_one_line(tmp_path: Path) -> None:
+    folder = tmp_path / "planes"
+    folder.mkdir()
+    values = head_phantom(16, seed=0).values
+    for k in range(3):
+        tifffile.imwrite(folder / f"p{k}.tif", values[k, : 16 - (k == 2)])
+    with pytest.raises(ValueError, match=r"TIFF planes differ: p0\.tif is \(16, 16\) of int16, p2\.tif is \(15, 16\)"):
+        read_volume(folder)
+
+
+def test_ome_zarr_micrometres_become_millimetres(tmp_path: Path) -> None:
+    values = volume_values()
+    group = zarr.open_group(str(tmp_path / "um.ome.zarr"), mode="w")
+    group.create_array("0", data=values, chunks=(4, 9, 13))
+    axes = [{"name": n, "type": "space", "unit": "micrometer"} for n in "zyx"]
+    scale = [{"type": "scale", "scale": [2.0, 0.5, 0.25]}]
+    group.attrs["multiscales"] = [
+        {"version": "0.4", "axes": axes, "datasets": [{"path": "0", "coordinateTransformations": scale}]}
+    ]
+    np.testing.assert_allclose(read_volume(tmp_path / "um.ome.zarr").spacing, (0.00025, 0.0005, 0.002))
+    axes[0]["unit"] = "parsec"
+    group.attrs["multiscales"] = [
+        {"version": "0.4", "axes": axes, "datasets": [{"path": "0", "coordinateTransformations": scale}]}
+    ]
+    with pytest.raises(ValueError, match="its axes are in 'parsec', a unit not known here"):
+        read_volume(tmp_path / "um.ome.zarr")

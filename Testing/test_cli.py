@@ -537,9 +537,12 @@ def test_unconverged_affinity_propagation_is_a_processing_error(tmp_path: Path, 
 def test_unconverged_advice_never_suggests_what_was_given(tmp_path: Path, capfd) -> None:
     argv = ["phantom", "-o", tmp_path / "out", "--phantom-size", 24, "--no-render", "-q", "--unconverged", "error"]
     code, _, err = _run([*argv, "--max-iter", 2, "--damping", "0.95"], capfd)
-    assert code == 1 and "raise max_iter (e.g. 1000)" in err and "damping" not in err.split(";", 1)[1]
+    advice = err.split(";", 1)[1]
+    assert code == 1 and "raise --max-iter (e.g. 1000)" in advice and "damping" not in advice
+    assert advice.lstrip().startswith("set --preference minimum")  # what works on an oscillating AP, first
     assert "raise max_iter" not in unconverged_advice(100_000, [0.5, 0.7, 0.9])  # the table's largest
-    assert unconverged_advice(1000, [0.5]).startswith("raise max_iter (e.g. 5000)")  # before: "e.g. 1000" again
+    assert "raise max_iter (e.g. 5000)" in unconverged_advice(1000, [0.5])  # before: "e.g. 1000" again
+    assert "preference='minimum'" in unconverged_advice(1000, [0.5])  # Python names in Python
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -618,8 +621,8 @@ def test_useless_results_are_refused_or_warned(tmp_path: Path, capfd) -> None:
     volume[6:18, 6:18, 6:18], volume[9:15, 9:15, 9:15] = 1, 2
     np.save(labels, volume)
     code, _, err = _run([labels, "-o", tmp_path / "b", "--no-render", "-q"], capfd)
-    assert code == 0 and "isosimtf: warning: the volume holds at most 3 distinct integer values" in err
-    assert "label map" in err
+    assert code == 0
+    assert "isosimtf: warning: the volume looks like a label map (at least 3 distinct integer values" in err
     design = design_transfer_function(head_phantom(16).values)
     for item in design.classes:
         design.set_class(item.id, visible=False)

@@ -110,3 +110,17 @@ def test_masked_arrays_are_refused():
     values = np.ma.masked_less(np.arange(512, dtype=np.int16).reshape(8, 8, 8), 100)
     with pytest.raises(ValueError, match="masked arrays are not supported"):
         quantize(values)
+
+
+def test_denormal_values_are_refused_without_numpy_warnings() -> None:
+    """Issue 18, item 14: denormal float64 volumes leaked numpy's overflow warnings and gave two meaningless
+    classes. Now one clear error."""
+    import warnings
+
+    from isosimtf.phantom import head_phantom
+
+    values = head_phantom(16, seed=0).values.astype(np.float64) * 1e-320
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError, match=r"too narrow for float64 bins \(denormal values\): scale the values"):
+            quantize(values)

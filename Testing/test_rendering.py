@@ -200,3 +200,26 @@ def test_render_volume_and_write_png(tmp_path):
     np.testing.assert_array_equal(back, picture)
     with pytest.raises(ValueError):
         rendering.write_png(picture.astype(np.float32), path)
+
+
+def test_a_png_on_a_full_disk_is_one_error_without_library_dumps(tmp_path: Path) -> None:
+    """Issue 18, item 10: a full disk printed VTK's and libpng's own dumps on stderr. The disk is "full" after 4 KB
+    here: a child process with a file size limit (RLIMIT_FSIZE, its SIGXFSZ ignored), so every larger write fails."""
+    import subprocess
+    import sys
+
+    script = f"""
+import resource, signal
+import numpy as np
+from isosimtf import rendering
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
+noise = np.random.default_rng(0).integers(0, 256, (256, 256, 3), dtype=np.uint8)  # does not compress to 4 KB
+try:
+    rendering.write_png(noise, {str(tmp_path / "big.png")!r})
+except OSError as error:
+    print("OSError:", error)
+"""
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert done.stdout.startswith("OSError: could not write PNG"), done.stdout + done.stderr
+    assert done.stderr == ""

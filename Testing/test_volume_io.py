@@ -403,7 +403,7 @@ def test_small_files_claiming_huge_volumes_are_refused_from_the_header(tmp_path:
         "ElementDataFile = data.raw.gz\n"
     )
     for path in files:
-        assert "2048 x 2048 x 512 voxels of int16 (4096 MiB), more than its" in _read_error(path, capfd)
+        assert "2048 x 2048 x 512 voxels of int16 (4.0 GiB), more than its" in _read_error(path, capfd)
 
 
 def test_ascii_nrrd_is_read_correctly(tmp_path: Path) -> None:
@@ -568,3 +568,65 @@ def test_inv3_errors(tmp_path: Path, capfd) -> None:
     with tarfile.open(project, "w:gz"):
         pass
     assert "no main.plist" in _read_error(project, capfd)
+
+
+def test_a_fifo_is_refused_without_waiting(tmp_path: Path, capfd) -> None:
+    import os
+
+    fifo = tmp_path / "volume.nrrd"
+    os.mkfifo(fifo)
+    assert "it is not a regular file (a FIFO, socket or device)" in _read_error(fifo, capfd)
+
+
+def _scaled_nifti(path: Path, stored: np.ndarray, slope: float, inter: float) -> None:
+    """A NIfTI file of ``stored`` integers with scl_slope / scl_inter patched in (as nibabel and dcm2niix write)."""
+    plain = path.with_name("plain.nii")
+    write_volume(Volume(stored, SPACING, ORIGIN, np.eye(3), "v"), plain, compress=False)
+    data = bytearray(plain.read_bytes())
+    struct.pack_into("<ff", data, 112, slope, inter)  # NIfTI-1: scl_slope, scl_inter at bytes 112, 116
+    path.write_bytes(gzip.compress(bytes(data)) if path.name.endswith(".gz") else bytes(data))
+
+
+@pytest.mark.parametrize("name", ["scaled.nii", "scaled.nii.gz"])
+@pytest.mark.parametrize(("dtype", "slope", "inter"), [(np.int16, 0.5, 10.0), (np.uint16, 1.0, -1024.0)])
+def test_scaled_nifti_is_read_with_its_scaling(tmp_path: Path, name: str, dtype, slope: float, inter: float) -> None:
+    """Issue 18, item 1: refused as "truncated" (the bytes were counted in float32, the type Slicer returns)."""
+    from isosimtf.phantom import head_phantom
+
+    stored = np.clip(head_phantom(16, seed=0).values.astype(np.int32) + 1024, 0, None).astype(dtype)
+    _scaled_nifti(tmp_path / name, stored, slope, inter)
+    read = read_volume(tmp_path / name)
+    np.testing.assert_allclose(read.values, stored * slope + inter, rtol=0, atol=1e-3)
+    assert read.values.dtype == np.float32
+
+
+def test_truncated_scaled_nifti_is_still_refused(tmp_path: Path, capfd) -> None:
+    stored = np.arange(8 * 9 * 10, dtype=np.int16).reshape(8, 9, 10)
+    _scaled_nifti(tmp_path / "s.nii", stored, 2.0, 1.0)
+    (tmp_path / "s.nii").write_bytes((tmp_path / "s.nii").read_bytes()[:-2])
+    assert f"truncated: {stored.nbytes} bytes of voxel data expected, {stored.nbytes - 2} found" in _read_error(
+        tmp_path / "s.nii", capfd
+    )
+
+
+@pytest.mark.parametrize(
+    ("name", "reader"),
+    [("v.nrrd", "NRRD, MetaImage or NIfTI"), ("v.mha", "NRRD, MetaImage or NIfTI"),
+     ("v.nii.gz", "NRRD, MetaImage or NIfTI"), ("v.vti", "VTK image"), ("v.npy", ".npy")],
+)  # fmt: skip
+def test_each_format_has_one_reader(tmp_path: Path, name: str, reader: str) -> None:
+    from isosimtf.volume_io import reader_for
+
+    write_volume(_volume(False), tmp_path / name)
+    assert reader_for(tmp_path / name).name == reader
+    (tmp_path / "notes.txt").write_text("not a volume")
+    assert reader_for(tmp_path / "notes.txt") is None
+
+
+def test_the_debian_volumes_have_their_readers() -> None:
+    from isosimtf.volume_io import reader_for
+
+    for name, reader in (("head-ct", "InVesalius"), ("brain-mri", "NRRD, MetaImage or NIfTI")):
+        path = real_dataset_path(name)
+        if path is not None:
+            assert reader_for(path).name == reader

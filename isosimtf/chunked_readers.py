@@ -1,13 +1,14 @@
 """Volumes read lazily, as dask arrays: Zarr and OME-Zarr, TIFF stacks, and raw NRRD / MetaImage, a few planes a read.
 
-None of these readers loads the volume: each returns a :class:`~.volume_io.Volume` whose ``values`` are a
+None of these readers loads the volume: each returns a :class:`~.volume.Volume` whose ``values`` are a
 ``dask.array`` of shape ``(K, J, I)`` (slowest axis first), read a row of chunks at a time by the design
 (``IsoSimilarityTFLib.chunked``).
 
 - Zarr (a folder holding ``zarr.json``, ``.zarray`` or ``.zgroup``): an array, or an OME-Zarr image whose level 0
-  (full resolution) is read; its ``scale`` gives the spacing, in the store's own unit. Leading axes of one voxel (time,
-  channel) are dropped.
-- TIFF: a multi-page file (``.tif``, ``.tiff``) or a folder of single-plane TIFF files (sorted by name), one page per
+  (full resolution) is read; its ``scale`` gives the spacing, turned into millimetres from the axes' ``unit``.
+  Leading axes of one voxel (time, channel) are dropped.
+- TIFF: a multi-page file (``.tif``, ``.tiff``) or a folder of single-plane TIFF files (in natural order: ``plane_2``
+  before ``plane_10``), one page per
   plane along k, through ``tifffile``'s Zarr view; spacing 1.
 - NRRD (``.nrrd``, ``.nhdr``) and MetaImage (``.mha``, ``.mhd``) whose voxels are stored raw (uncompressed) in the
   file after the header or in a detached data file: read from the file a few planes per chunk; geometry as Slicer
@@ -25,16 +26,15 @@ Optional dependencies (the ``outofcore`` extra): ``dask[array]``, plus ``zarr`` 
 
 import re
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Optional
+from typing import Any, Callable, Optional
 
 import numpy as np
 
 from IsoSimilarityTFLib.memory import available_memory_bytes, design_memory_bytes
 
+from .headers import StoredVoxels, stored_voxels
 from .read_errors import cannot_read
-
-if TYPE_CHECKING:  # pragma: no cover - typing only (volume_io imports this module)
-    from .volume_io import Volume
+from .volume import Volume, right_handed
 
 #: Bytes of one chunk of a raw volume (whole planes): a row of chunks is one chunk, read in one go.
 RAW_CHUNK_BYTES = 64 << 20
@@ -50,24 +50,6 @@ _TIFF_SUFFIXES = (".tif", ".tiff")
 _RAW_SUFFIXES = (".nrrd", ".nhdr", ".mha", ".mhd")
 _ZARR_MARKERS = ("zarr.json", ".zarray", ".zgroup")
 
-# NRRD types and MetaImage element types, as numpy kinds (byte order added from the header).
-_NRRD_TYPES = {
-    **dict.fromkeys(("signed char", "int8", "int8_t"), "i1"),
-    **dict.fromkeys(("uchar", "unsigned char", "uint8", "uint8_t"), "u1"),
-    **dict.fromkeys(("short", "short int", "signed short", "signed short int", "int16", "int16_t"), "i2"),
-    **dict.fromkeys(("ushort", "unsigned short", "unsigned short int", "uint16", "uint16_t"), "u2"),
-    **dict.fromkeys(("int", "signed int", "int32", "int32_t"), "i4"),
-    **dict.fromkeys(("uint", "unsigned int", "uint32", "uint32_t"), "u4"),
-    "float": "f4",
-    "double": "f8",
-}
-_MET_TYPES = {
-    "MET_CHAR": "i1", "MET_UCHAR": "u1", "MET_SHORT": "i2", "MET_USHORT": "u2", "MET_INT": "i4", "MET_UINT": "u4",
-    "MET_FLOAT": "f4", "MET_DOUBLE": "f8",
-}  # fmt: skip
-# LPS (NRRD's usual space, ITK's and so MetaImage's) to Slicer's RAS.
-_LPS_TO_RAS = np.diag([-1.0, -1.0, 1.0])
-
 
 def is_chunked_format(path: Path) -> bool:
     """Whether ``path`` is a Zarr store or a TIFF stack: formats only this module reads."""
@@ -76,53 +58,83 @@ def is_chunked_format(path: Path) -> bool:
     return path.name.lower().endswith(_TIFF_SUFFIXES)
 
 
-def reads_chunked(path: Path, n_bins: Optional[int]) -> bool:
+def reads_chunked(path: Path, n_bins: Optional[int], stored: Optional[StoredVoxels] = None) -> bool:
     """Whether ``path`` is read lazily: a Zarr or TIFF input, or a raw NRRD / MetaImage too large for memory.
 
     Too large: the in-memory read and design (:func:`~IsoSimilarityTFLib.memory.design_memory_bytes` with the voxels
     themselves) would need more than half the memory available; the other half stays for the rest of the machine.
+
+    Args:
+        stored: the file's :func:`.headers.stored_voxels`, when the caller has it (else it is read here).
     """
     if is_chunked_format(path):
         return True
     if not path.is_file() or not path.name.lower().endswith(_RAW_SUFFIXES):
         return False
-    layout = raw_layout(path)
+    stored = stored if stored is not None else stored_voxels(path)
     available = available_memory_bytes()
-    if layout is None or available is None:
+    if stored is None or not stored.raw or available is None:
         return False
-    shape, dtype = layout[1], layout[2]
-    needed = int(np.prod(shape, dtype=np.float64)) * dtype.itemsize + design_memory_bytes(shape, n_bins or 256)
+    needed = stored.nbytes + design_memory_bytes(stored.shape, n_bins or 256)
     return needed > available // 2
 
 
-def read_chunked(path: Path) -> "Volume":
-    """Open ``path`` lazily (see the module docstring) as a :class:`~.volume_io.Volume` holding a dask array.
+def read_chunked(path: Path, stored: Optional[StoredVoxels] = None) -> Volume:
+    """Open ``path`` lazily (see the module docstring) as a :class:`~.volume.Volume` holding a dask array.
 
     Raises:
         VolumeReadError: not a format read here, a compressed raw file, a raw file missing or truncated, or not a 3-D
             scalar volume.
     """
-    from .volume_io import Volume
-
     name = path.name.split(".")[0] or path.name
     if path.is_dir() and any((path / marker).exists() for marker in _ZARR_MARKERS):
         values, spacing = _zarr_volume(path)
         return Volume(values, spacing, name=name)
     if is_chunked_format(path):
         return Volume(_tiff_volume(path), name=name)
-    layout = raw_layout(path)
-    if layout is None:
+    stored = stored if stored is not None else stored_voxels(path)
+    if stored is None or not stored.raw:
         raise cannot_read(
             path, "its voxels are not stored raw (uncompressed): it cannot be read a few planes at a time"
         )
-    data, shape, dtype, offset, ijk_to_ras = layout
-    if not data.is_file():
-        raise cannot_read(path, f"its data file '{data}' does not exist")
-    expected = int(np.prod(shape, dtype=np.float64)) * dtype.itemsize
-    found = data.stat().st_size - offset
-    if found < expected:
-        raise cannot_read(path, f"it is truncated: {expected} bytes of voxel data expected, {max(found, 0)} found")
-    return Volume.from_ijk_to_ras(raw_volume(data, shape, dtype, offset), ijk_to_ras, name)
+    values, ijk_to_ras = raw_values(path, stored, raw_volume)
+    return Volume.from_ijk_to_ras(values, ijk_to_ras, name)
+
+
+def raw_values(
+    path: Path, stored: StoredVoxels, read: Callable[[Path, tuple[int, int, int], np.dtype, int], Any]
+) -> tuple[Any, np.ndarray]:
+    """The voxels of a raw file read by ``read`` (lazily or not), placed as Slicer's storage node places them.
+
+    Dimensions and geometry come from Slicer's own header pass (:func:`.slicer_readers.read_header`), so every
+    geometry field Slicer honours (``space directions``, ``spacings``, ``space``, ``TransformMatrix``, negative
+    spacing, ...) means here what it means in Slicer; a left-handed frame is made right-handed as the storage node
+    makes it. :mod:`.headers` gives only where the voxels are.
+
+    Args:
+        read: ``read(data file, (K, J, I), dtype, offset)`` -> the values, ``(K, J, I)``: :func:`raw_volume` for a
+            dask array, ``numpy.fromfile``-like for memory.
+
+    Returns:
+        ``(values (K, J, I) right-handed, IJK-to-RAS 4x4)``.
+
+    Raises:
+        VolumeReadError: Slicer's reader cannot read the header or sees another size or type, or the file is
+            truncated.
+    """
+    from . import slicer_readers
+
+    header = slicer_readers.read_header(path, (path,))
+    if header.components != 1 or header.dimensions != stored.shape[::-1]:
+        raise cannot_read(
+            path,
+            f"its header is ambiguous: Slicer reads {header.dimensions} voxels, its storage fields say "
+            f"{stored.shape[::-1]}",
+        )
+    found = stored.data.stat().st_size - stored.offset
+    if found < stored.nbytes:
+        raise cannot_read(path, f"it is truncated: {stored.nbytes} bytes of voxel data expected, {max(found, 0)} found")
+    return right_handed(read(stored.data, stored.shape, stored.dtype, stored.offset), header.ijk_to_ras)
 
 
 def preview_step(shape: tuple[int, int, int], max_voxels: Optional[int] = None) -> int:
@@ -135,7 +147,7 @@ def preview_step(shape: tuple[int, int, int], max_voxels: Optional[int] = None) 
     return step
 
 
-def read_preview(volume: "Volume", step: int) -> "Volume":
+def read_preview(volume: Volume, step: int) -> Volume:
     """Every ``step``-th voxel along each axis of a volume read lazily, in memory, in one strided read.
 
     Nearest sampling keeps the voxel values exact (a block average would make intensities the volume does not hold),
@@ -143,17 +155,21 @@ def read_preview(volume: "Volume", step: int) -> "Volume":
     space: same origin (the centre of voxel 0, kept) and directions, spacing times ``step``.
 
     Args:
-        volume: a :class:`~.volume_io.Volume` whose values are a dask array ``(K, J, I)``.
+        volume: a :class:`~.volume.Volume` whose values are a dask array ``(K, J, I)``.
         step: voxels per preview voxel along each axis (see :func:`preview_step`).
 
     Returns:
-        A :class:`~.volume_io.Volume` holding a numpy array of shape ``ceil((K, J, I) / step)``.
+        A :class:`~.volume.Volume` holding a numpy array of shape ``ceil((K, J, I) / step)``.
     """
-    from .volume_io import Volume
-
     values = volume.values[::step, ::step, ::step].compute()  # on --scheduler's cluster when there is one
     spacing = tuple(s * step for s in volume.spacing)
     return Volume(values, spacing, volume.origin, volume.directions, volume.name)
+
+
+def raw_array(data: Path, shape: tuple[int, int, int], dtype: np.dtype, offset: int = 0) -> np.ndarray:
+    """A raw volume file read into memory, in its own dtype (native byte order), shape ``(K, J, I)``."""
+    values = np.fromfile(data, dtype=dtype, count=int(np.prod(shape)), offset=offset).reshape(shape)
+    return values if values.dtype.isnative else values.astype(values.dtype.newbyteorder("="))
 
 
 def raw_volume(data: Path, shape: tuple[int, int, int], dtype: np.dtype, offset: int = 0) -> Any:
@@ -221,82 +237,6 @@ def _read_fully(file: Any, target: np.ndarray, path: Path) -> None:
         view = view[count:]
 
 
-def raw_layout(path: Path) -> Optional[tuple[Path, tuple[int, int, int], np.dtype, int, np.ndarray]]:
-    """Where and how a NRRD / MetaImage stores its voxels, when raw and scalar 3-D; else None.
-
-    Returns:
-        ``(data file, (K, J, I) shape, dtype with byte order, byte offset, 4x4 IJK-to-RAS matrix)``.
-    """
-    with open(path, "rb") as handle:
-        head = handle.read(1 << 16).decode("latin-1")
-    try:
-        if path.name.lower().endswith((".nrrd", ".nhdr")):
-            return _nrrd_layout(path, head)
-        return _mha_layout(path, head)
-    except (ValueError, TypeError):  # a malformed header: Slicer's reader says what is wrong with it
-        return None
-
-
-def _nrrd_layout(path: Path, head: str):
-    header, separator, _ = head.partition("\n\n")
-    fields = dict(_field(line, ":") for line in header.splitlines()[1:] if ":" in line and not line.startswith("#"))
-    sizes = [int(s) for s in fields.get("sizes", "").split()]
-    kind = _NRRD_TYPES.get(fields.get("type", ""))
-    detached = fields.get("data file")
-    if fields.get("encoding") != "raw" or kind is None or len(sizes) != 3 or (detached and " " in detached):
-        return None  # compressed, not scalar 3-D, or a list of data files
-    dtype = np.dtype(("<" if fields.get("endian", "little") == "little" else ">") + kind)
-    if detached:
-        data, offset = path.parent / detached, int(fields.get("byte skip", 0))
-    else:  # the voxels follow the blank line that ends the header
-        data, offset = path, len((header + separator).encode("latin-1"))
-    directions = re.findall(r"\(([^)]*)\)", fields.get("space directions", ""))
-    axes = np.array([[float(v) for v in d.split(",")] for d in directions]).T if len(directions) == 3 else np.eye(3)
-    origin = re.findall(r"[-+0-9.eE]+", fields.get("space origin", "")) or ["0", "0", "0"]
-    to_ras = _LPS_TO_RAS if fields.get("space", "left-posterior-superior").startswith("left-posterior") else np.eye(3)
-    return data, tuple(sizes[::-1]), dtype, offset, _ijk_to_ras(to_ras @ axes, to_ras @ np.array(origin, float))
-
-
-def _mha_layout(path: Path, head: str):
-    lines = head.split("\n")
-    fields, header_bytes = {}, 0
-    for line in lines:
-        header_bytes += len(line.encode("latin-1")) + 1
-        key, value = _field(line, "=")
-        fields[key] = value
-        if key == "ElementDataFile":
-            break
-    sizes = [int(s) for s in fields.get("DimSize", "").split()]
-    kind = _MET_TYPES.get(fields.get("ElementType", ""))
-    compressed = fields.get("CompressedData", "False").lower() == "true"
-    if compressed or kind is None or len(sizes) != 3 or int(fields.get("ElementNumberOfChannels", 1)) != 1:
-        return None
-    big = fields.get("ElementByteOrderMSB", fields.get("BinaryDataByteOrderMSB", "False")).lower() == "true"
-    dtype = np.dtype((">" if big else "<") + kind)
-    data_file = fields.get("ElementDataFile", "")
-    if data_file == "LOCAL":
-        data, offset = path, header_bytes
-    elif data_file and " " not in data_file and "%" not in data_file:
-        data, offset = path.parent / data_file, max(0, int(fields.get("HeaderSize", 0)))
-    else:
-        return None
-    spacing = np.array([float(s) for s in fields.get("ElementSpacing", "1 1 1").split()])
-    matrix = np.array([float(v) for v in fields.get("TransformMatrix", "1 0 0 0 1 0 0 0 1").split()]).reshape(3, 3).T
-    origin = np.array([float(v) for v in fields.get("Offset", fields.get("Origin", "0 0 0")).split()])
-    return data, tuple(sizes[::-1]), dtype, offset, _ijk_to_ras(_LPS_TO_RAS @ matrix * spacing, _LPS_TO_RAS @ origin)
-
-
-def _field(line: str, separator: str) -> tuple[str, str]:
-    key, _, value = line.partition(separator)
-    return key.strip(), value.strip()
-
-
-def _ijk_to_ras(axes: np.ndarray, origin: np.ndarray) -> np.ndarray:
-    matrix = np.eye(4)
-    matrix[:3, :3], matrix[:3, 3] = axes, origin
-    return matrix
-
-
 def _zarr_volume(path: Path) -> tuple[Any, tuple[float, float, float]]:
     """Level 0 of a Zarr array or OME-Zarr image as a 3-D dask array, with its spacing (x, y, z)."""
     import dask.array as da
@@ -313,6 +253,8 @@ def _zarr_volume(path: Path) -> tuple[Any, tuple[float, float, float]]:
         for transform in level.get("coordinateTransformations", []):
             if transform.get("type") == "scale":
                 scale = [float(s) for s in transform["scale"]][-3:]
+        units = [axis.get("unit") if isinstance(axis, dict) else None for axis in multiscales[0].get("axes", [])][-3:]
+        scale = [s * _millimetres(path, unit) for s, unit in zip(scale, units + [None] * (3 - len(units)))]
         node = node[level["path"]]
     values = da.from_zarr(node)
     while values.ndim > 3 and values.shape[0] == 1:  # OME-Zarr's time and channel axes
@@ -321,8 +263,31 @@ def _zarr_volume(path: Path) -> tuple[Any, tuple[float, float, float]]:
     return values, (scale[2], scale[1], scale[0])
 
 
+def _natural_key(path: Path) -> list:
+    """Sort key that orders ``plane_2`` before ``plane_10`` (numbers by value, the rest as text)."""
+    return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", path.name)]
+
+
+#: OME-Zarr space units (UDUNITS-2 names) in millimetres; Slicer's world unit is the millimetre.
+_UNIT_MM = {
+    "millimeter": 1.0, "micrometer": 1e-3, "nanometer": 1e-6, "centimeter": 10.0, "meter": 1000.0,
+    "decimeter": 100.0, "angstrom": 1e-7,
+}  # fmt: skip
+
+
+def _millimetres(path: Path, unit: Optional[str]) -> float:
+    """Millimetres per unit of an OME-Zarr axis; no unit: the value is taken as millimetres."""
+    if unit is None:
+        return 1.0
+    if unit not in _UNIT_MM:
+        raise cannot_read(path, f"its axes are in '{unit}', a unit not known here (known: {', '.join(_UNIT_MM)})")
+    return _UNIT_MM[unit]
+
+
 def _tiff_files(folder: Path) -> list[Path]:
-    return sorted(p for p in folder.iterdir() if p.name.lower().endswith(_TIFF_SUFFIXES))
+    """The TIFF planes of a folder in natural order (``plane_0, plane_1, ..., plane_10``), as Slicer's image
+    stack readers and file browsers order them; text order would put ``plane_10`` after ``plane_1``."""
+    return sorted((p for p in folder.iterdir() if p.name.lower().endswith(_TIFF_SUFFIXES)), key=_natural_key)
 
 
 def _tiff_volume(path: Path) -> Any:
@@ -332,12 +297,39 @@ def _tiff_volume(path: Path) -> Any:
     import zarr
 
     if path.is_dir():
-        store = tifffile.TiffSequence(_tiff_files(path)).aszarr()
+        files = _tiff_files(path)
+        first = _tiff_plane(path, files[0])
+        for file in files[1:]:
+            plane = _tiff_plane(path, file)
+            if plane != first:
+                raise cannot_read(
+                    path,
+                    f"its TIFF planes differ: {files[0].name} is {first[0]} of {first[1]}, {file.name} is "
+                    f"{plane[0]} of {plane[1]}; every plane of the stack needs one size and type",
+                )
+        store = tifffile.TiffSequence(files).aszarr()
     else:
         store = tifffile.imread(path, aszarr=True)
     values = da.from_zarr(zarr.open(store, mode="r"))
     _check_3d(path, values.shape)
     return values
+
+
+def _tiff_plane(folder: Path, file: Path) -> tuple[tuple[int, ...], str]:
+    """Shape and dtype of a single-plane TIFF file of a folder stack (a multi-page or unreadable file refused)."""
+    import tifffile
+
+    try:
+        with tifffile.TiffFile(file) as tiff:
+            pages = len(tiff.pages)
+            shape, dtype = tuple(tiff.pages[0].shape), str(tiff.pages[0].dtype)
+    except (tifffile.TiffFileError, OSError, ValueError) as error:
+        raise cannot_read(folder, f"{file.name} is not a readable TIFF file ({error})") from None
+    if pages != 1 or len(shape) != 2:
+        raise cannot_read(
+            folder, f"{file.name} holds {pages} page(s) of shape {shape}: a folder stack needs one 2-D plane a file"
+        )
+    return shape, dtype
 
 
 def _check_3d(path: Path, shape: tuple[int, ...]) -> None:

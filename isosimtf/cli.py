@@ -264,6 +264,8 @@ def _exit_status(error: BaseException) -> int:
 
 
 def _message(error: BaseException) -> str:
+    if isinstance(error, ClusteringError):
+        return _cli_spelling(str(error))
     if isinstance(error, IsoSimilarityTFError):
         return str(error)
     if isinstance(error, MemoryError):
@@ -273,6 +275,15 @@ def _message(error: BaseException) -> str:
     if isinstance(error, OSError):
         return f"{error.strerror or error}" + (f": {error.filename}" if error.filename else "")
     return f"internal error ({type(error).__name__}: {error}); rerun with ISOSIMTF_DEBUG=1 for details"
+
+
+def _cli_spelling(text: str) -> str:
+    """Advice written with the Python option names (``preference='minimum'``, ``max_iter``) in the command's own
+    spelling (``--preference minimum``, ``--max-iter``)."""
+    for option in OPTIONS.values():
+        text = re.sub(rf"(?<![-\w]){option.name}='([^']*)'", rf"{option.flag} \1", text)
+        text = re.sub(rf"\b(raise|lower|set) {option.name}\b", rf"\1 {option.flag}", text)
+    return text
 
 
 def console_main() -> NoReturn:

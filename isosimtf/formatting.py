@@ -30,3 +30,12 @@ def format_percent(fraction: float, decimals: int = 1) -> str:
 def color_hex(color) -> str:
     """``#rrggbb`` of an RGB colour in 0..1."""
     return "#" + "".join(f"{int(round(255 * min(max(float(c), 0.0), 1.0))):02x}" for c in color)
+
+
+def format_bytes(count: float) -> str:
+    """``"512 bytes"``, ``"3.2 KiB"``, ``"41 MiB"``, ``"1.5 GiB"``: never ``"0 MiB"`` for a small size."""
+    for unit, scale in (("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
+        if count >= scale:
+            value = count / scale
+            return f"{value:.1f} {unit}" if value < 10 else f"{value:.0f} {unit}"
+    return f"{int(count)} bytes"

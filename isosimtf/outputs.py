@@ -18,14 +18,14 @@ from typing import TYPE_CHECKING, Any, Optional
 import numpy as np
 
 from IsoSimilarityTFLib.design import Tissue, TransferFunctionDesign
-from IsoSimilarityTFLib.errors import OutputError, RenderError
 from IsoSimilarityTFLib.pictures import similarity_image
 
 from .console import ProgressPrinter
 from .figures import class_grid, tissue_label_lines
 from .formatting import value_decimals
-from .output_folder import save_scene
-from .volume_io import Volume
+from .output_folder import file_stamp, save_scene, write_atomically
+from .read_errors import captured_native_output, first_message
+from .volume import Volume
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     from .rendering import HeadlessSlicer
@@ -92,6 +92,8 @@ class RunResult:
         timings_s: seconds per stage: load, quantize, similarity, clustering, classes, write, render, total.
         warnings: warning lines given during the run.
         preview: what the pictures of a volume read lazily are rendered from; None for a volume in memory.
+        kept: files a previous run wrote and someone changed since, left untouched: relative name -> the stamp
+            recorded then, carried into ``written_stamps`` so that later runs leave them alone too.
     """
 
     design: TransferFunctionDesign
@@ -103,6 +105,7 @@ class RunResult:
     timings_s: dict[str, float] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     preview: Optional[Preview] = None
+    kept: dict[str, list[int]] = field(default_factory=dict)
 
     @property
     def pictured(self) -> Volume:
@@ -123,8 +126,13 @@ class RunResult:
         document["input"] = {**self.info, "preview": None if self.preview is None else self.preview.document()}
         document["tool"] = {"name": "isosimtf", "version": __version__}
         document["outputs"] = {role: path.relative_to(self.outdir).as_posix() for role, path in self.files.items()}
-        # Every file this run wrote: the next run into this folder removes those it does not write again.
-        document["written"] = sorted({p.relative_to(self.outdir).as_posix() for p in self.written()})
+        # Every file this run wrote, with its size and time: the next run into this folder replaces or removes those
+        # still as written, and never touches one changed since (nor those a previous run found changed: kept).
+        names = {p.relative_to(self.outdir).as_posix(): p for p in self.written()}
+        stamps = {name: file_stamp(p) for name, p in names.items() if name != OUTPUT_FILES["classes_json"]}
+        document["written"] = sorted({*names, *self.kept})
+        document["written_stamps"] = {name: stamps.get(name, self.kept.get(name)) for name in document["written"]}
+        document["written_stamps"].pop(OUTPUT_FILES["classes_json"], None)
         return document
 
     def written(self) -> list[Path]:
@@ -137,15 +145,18 @@ def write_data_files(result: RunResult) -> None:
     from .rendering import write_png
 
     design, outdir = result.design, result.outdir
-    paths = {role: outdir / OUTPUT_FILES[role] for role in ("similarity_npy", "similarity_png", "vp_json", "vp")}
-    try:
-        np.save(paths["similarity_npy"], np.asarray(design.similarity, dtype=np.float64))
-        write_png(similarity_image(design.similarity, design.labels, design.class_colors), paths["similarity_png"])
-        design.write_vp_json(paths["vp_json"])
-        design.write_vp(paths["vp"])
-    except OSError as error:
-        raise OutputError(f"cannot write into '{outdir}': {error.strerror or error}") from None
-    result.files.update(paths)
+    writers = {
+        "similarity_npy": lambda path: np.save(path, np.asarray(design.similarity, dtype=np.float64)),
+        "similarity_png": lambda path: write_png(
+            similarity_image(design.similarity, design.labels, design.class_colors), path
+        ),
+        "vp_json": design.write_vp_json,
+        "vp": design.write_vp,
+    }
+    for role, write in writers.items():
+        path = outdir / OUTPUT_FILES[role]
+        write_atomically(path, write)
+        result.files[role] = path  # recorded once complete
     write_classes_json(result)
 
 
@@ -153,10 +164,8 @@ def write_classes_json(result: RunResult) -> Path:
     """(Re)write classes.json with the run's current timings and file list."""
     path = result.outdir / OUTPUT_FILES["classes_json"]
     result.files["classes_json"] = path
-    try:
-        path.write_text(json.dumps(result.document(), indent=1) + "\n", encoding="utf-8")
-    except OSError as error:
-        raise OutputError(f"cannot write '{path}': {error.strerror or error}") from None
+    text = json.dumps(result.document(), indent=1) + "\n"
+    write_atomically(path, lambda temporary: temporary.write_text(text, encoding="utf-8"))
     return path
 
 
@@ -226,14 +235,16 @@ def render_outputs(
     tissues = shown_tissues(design)
     if tissues:
         path = outdir / OUTPUT_FILES["classes_png"]
-        write_png(_tissue_grid(headless, property_node, design, tissues, progress), path)
+        grid = _tissue_grid(headless, property_node, design, tissues, progress)
+        write_atomically(path, lambda temporary: write_png(grid, temporary))
         result.files["classes_png"] = path
 
     if progress is not None:
         progress.update("render.png")
     headless.render_window.SetSize(size, size)
     path = outdir / OUTPUT_FILES["render_png"]
-    write_png(headless.render(view=None, reset_camera=False), path)
+    picture = headless.render(view=None, reset_camera=False)
+    write_atomically(path, lambda temporary: write_png(picture, temporary))
     result.files["render_png"] = path
     if not result.full_resolution:
         return
@@ -290,11 +301,18 @@ def write_segmentation(result: RunResult, headless, volume_node) -> None:
     path = result.outdir / OUTPUT_FILES["segmentation"]
     node = export_segmentation(volume_node, result.design)
     storage = headless.scene.AddNewNodeByClass("vtkMRMLSegmentationStorageNode")
-    storage.SetFileName(str(path))
-    written = storage.WriteData(node)
-    for added in (storage, node.GetDisplayNode(), node):
-        if added is not None:
-            headless.scene.RemoveNode(added)
-    if not written:
-        raise RenderError(f"Slicer could not write '{path}'")
+
+    def write(temporary: Path) -> None:
+        storage.SetFileName(str(temporary))
+        with captured_native_output() as texts:
+            written = storage.WriteData(node)
+        if not written:
+            raise OSError(first_message(texts) or "Slicer's segmentation writer failed")
+
+    try:
+        write_atomically(path, write)
+    finally:
+        for added in (storage, node.GetDisplayNode(), node):
+            if added is not None:
+                headless.scene.RemoveNode(added)
     result.files["segmentation"] = path

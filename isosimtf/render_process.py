@@ -31,8 +31,9 @@ from IsoSimilarityTFLib.errors import RenderError
 from .console import ProgressPrinter
 from .outputs import RunResult
 
-#: Replies of the child: ("progress", label), ("done", files, scene_files) or ("failed", one-line reason).
-_PROGRESS, _DONE, _FAILED = "progress", "done", "failed"
+#: Replies of the child: ("progress", label), ("wrote", role, path) for each file once complete, ("done", files,
+#: scene_files) or ("failed", one-line reason).
+_PROGRESS, _WROTE, _DONE, _FAILED = "progress", "wrote", "done", "failed"
 
 
 class RenderProcess:
@@ -66,6 +67,8 @@ class RenderProcess:
                 reply = pickle.load(self._replies)
                 if reply[0] == _PROGRESS and progress is not None:
                     progress.update(reply[1])
+                elif reply[0] == _WROTE:  # recorded at once: an interrupted run still lists every complete picture
+                    result.files[reply[1]] = reply[2]
                 elif reply[0] == _DONE:
                     result.files.update(reply[1])
                     result.scene_files = reply[2]
@@ -114,6 +117,18 @@ class _ReplyProgress(ProgressPrinter):
         _send(self._replies, (_PROGRESS, message))
 
 
+class _ReportedFiles(dict):
+    """``result.files`` in the child: each file recorded (once complete) is reported to the parent at once."""
+
+    def __init__(self, replies: BinaryIO, files: dict) -> None:
+        super().__init__(files)
+        self._replies = replies
+
+    def __setitem__(self, role: str, path: Any) -> None:
+        super().__setitem__(role, path)
+        _send(self._replies, (_WROTE, role, path))
+
+
 def _serve(replies: BinaryIO, window: dict) -> None:
     """The child: open the headless Slicer, wait for one run, render it, reply."""
     from .outputs import open_headless, render_outputs
@@ -129,6 +144,7 @@ def _serve(replies: BinaryIO, window: dict) -> None:
     try:
         if failure is not None:
             raise RuntimeError(failure)
+        result.files = _ReportedFiles(replies, result.files)
         render_outputs(result, view=view, size=size, progress=_ReplyProgress(replies), headless=headless)
     except (RuntimeError, OSError, ValueError) as error:
         _send(replies, (_FAILED, str(error)))
@@ -137,7 +153,7 @@ def _serve(replies: BinaryIO, window: dict) -> None:
         print(details, end="", file=sys.stderr, flush=True)
         _send(replies, (_FAILED, details.strip().splitlines()[-1]))
     else:
-        _send(replies, (_DONE, result.files, result.scene_files))
+        _send(replies, (_DONE, dict(result.files), result.scene_files))
 
 
 if __name__ == "__main__":

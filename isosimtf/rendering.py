@@ -796,6 +796,10 @@ def write_png(rgb: np.ndarray, path: str | os.PathLike) -> None:
     writer = vtkPNGWriter()
     writer.SetFileName(os.fspath(path))
     writer.SetInputData(image)
-    writer.Write()
+    from .read_errors import captured_native_output, first_message  # read_errors imports this module
+
+    with captured_native_output() as texts:  # libpng and VTK print their failures (a full disk) themselves
+        writer.Write()
     if writer.GetErrorCode():
-        raise OSError(f"could not write PNG {path} (VTK error code {writer.GetErrorCode()})")
+        detail = first_message(texts) or f"VTK error code {writer.GetErrorCode()}"
+        raise OSError(f"could not write PNG {path} ({detail})")

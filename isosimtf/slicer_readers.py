@@ -16,6 +16,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from .headers import spacing_problem
 from .read_errors import cannot_read, captured_native_output, first_message, itk_reason
 
 #: File suffixes read by Slicer's ITK-based reader (lower case, longest first); a DICOM file may have any suffix.
@@ -31,12 +32,15 @@ class ImageHeader:
         components: values per voxel (1 for a scalar volume).
         dtype: the type of the voxel values as Slicer will hold them (e.g. rescaled DICOM values).
         files: the files that hold the voxels: one, or the slices of a DICOM series in order along the slice normal.
+        ijk_to_ras: the 4x4 matrix from the voxel indices of the file's own order to RAS millimetres, as the reader
+            gives it before the storage node makes a left-handed frame right-handed (:func:`.volume.right_handed`).
     """
 
     dimensions: tuple[int, int, int]
     components: int
     dtype: np.dtype
     files: tuple[Path, ...]
+    ijk_to_ras: np.ndarray
 
 
 def _slicer() -> Any:
@@ -102,10 +106,15 @@ def read_header(path: Path, files: tuple[Path, ...]) -> ImageHeader:
         reader.UpdateInformation()
     extent = reader.GetOutputInformation(0).Get(vtkStreamingDemandDrivenPipeline.WHOLE_EXTENT())
     if reader.GetErrorCode() or extent is None:
-        raise cannot_read(path, _reason(files[0], texts))
+        raise cannot_read(path, spacing_problem(files[0]) or _reason(files[0], texts))
     dimensions = tuple(int(extent[2 * a + 1] - extent[2 * a] + 1) for a in range(3))
     dtype = np.dtype(get_numpy_array_type(reader.GetOutputScalarType()))
-    return ImageHeader(dimensions, int(reader.GetNumberOfComponents()), dtype, files)  # type: ignore[arg-type]
+    matrix = reader.GetRasToIjkMatrix()
+    ras_to_ijk = np.array([[matrix.GetElement(r, c) for c in range(4)] for r in range(4)])
+    if not np.isfinite(ras_to_ijk).all() or abs(np.linalg.det(ras_to_ijk)) < 1e-300:
+        raise cannot_read(path, "its header gives a zero or invalid voxel spacing or direction")
+    components = int(reader.GetNumberOfComponents())
+    return ImageHeader(dimensions, components, dtype, files, np.linalg.inv(ras_to_ijk))  # type: ignore[arg-type]
 
 
 def _dicom_tags(path: Path) -> dict[str, str]:
@@ -137,14 +146,23 @@ def dicom_series(path: Path) -> tuple[Path, ...]:
     normal of Image Orientation (Patient) and hands the sorted list to the storage node, as done here.
 
     Raises:
-        VolumeReadError: no DICOM file; several series in the folder (named, with advice); slices without position
-            or orientation, or sharing a position.
+        VolumeReadError: no DICOM file (or only subfolders); several series in the folder (named, with advice);
+            slices without position or orientation, sharing a position, of mixed orientations or sizes, or not
+            equally spaced (missing slices).
     """
     folder = path if path.is_dir() else path.parent
-    files = sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
+    entries = sorted(p for p in folder.iterdir() if not p.name.startswith("."))
+    files = [p for p in entries if p.is_file()]
+    subfolders = [p for p in entries if p.is_dir()]
+    dicom = [p for p in files if is_dicom_file(p)]
+    if path.is_dir() and not dicom and subfolders:
+        raise cannot_read(
+            path,
+            f"it holds no DICOM file itself but {len(subfolders)} subfolder(s) (e.g. '{subfolders[0].name}'): "
+            "give the folder of one series as INPUT (series are not searched for in subfolders)",
+        )
     if path.is_dir() and not files:
         raise cannot_read(path, "the folder is empty (a DICOM series folder was expected)")
-    dicom = [p for p in files if is_dicom_file(p)]
     if not dicom:
         raise cannot_read(path, f"no DICOM files found in the folder ({len(files)} other file(s))")
     series: dict[str, list[tuple[Path, dict[str, str]]]] = {}
@@ -165,18 +183,57 @@ def dicom_series(path: Path) -> tuple[Path, ...]:
     return _sorted_slices(path, chosen)
 
 
+#: Largest difference between two slice gaps of one volume, in mm: Slicer's DICOM scalar volume plugin's epsilon.
+SLICE_GAP_TOLERANCE_MM = 0.01
+#: Largest difference between two slices' orientation cosines taken for the same orientation.
+ORIENTATION_TOLERANCE = 1e-4
+
+
 def _sorted_slices(path: Path, members: list[tuple[Path, dict[str, str]]]) -> tuple[Path, ...]:
+    """The slices in order along the normal, refused (with the reason and the fix) where Slicer's DICOM module
+    would warn that the series is not one regular volume: mixed orientations or sizes, slices sharing a position,
+    missing slices or uneven gaps. Slicer's reader would then read a wrong spacing or origin without a word."""
     if len(members) == 1:
         return (members[0][0],)  # one file: a single slice, or a multi-frame volume
     orientation = _numbers(members[0][1].get("0020|0037", ""), 6)
     positions = [_numbers(tags.get("0020|0032", ""), 3) for _, tags in members]
     if orientation is None or any(p is None for p in positions):
         raise cannot_read(path, "some slices lack a valid Image Position or Image Orientation (Patient)")
+    others = [
+        file
+        for file, tags in members
+        if (o := _numbers(tags.get("0020|0037", ""), 6)) is None
+        or np.abs(o - orientation).max() > ORIENTATION_TOLERANCE
+    ]
+    if others:
+        raise cannot_read(
+            path,
+            f"{len(others)} of its {len(members)} slices (e.g. {others[0].name}) have another Image Orientation than "
+            f"{members[0][0].name} (a localizer or a tilted stack in the series): move them to another folder",
+        )
+    sizes = {(tags.get("0028|0010"), tags.get("0028|0011")) for _, tags in members}
+    if len(sizes) > 1:
+        listed = ", ".join(f"{r} x {c}" for r, c in sorted(sizes, key=str))
+        raise cannot_read(path, f"its slices have different sizes ({listed} pixels): keep one size in the folder")
     normal = np.cross(orientation[:3], orientation[3:])
     distances = np.array([float(np.dot(p, normal)) for p in positions])  # type: ignore[arg-type]
     order = np.argsort(distances, kind="stable")
-    if np.any(np.diff(distances[order]) <= 1e-6 * max(1.0, float(np.ptp(distances)))):
+    gaps = np.diff(distances[order])
+    if np.any(gaps <= 1e-6 * max(1.0, float(np.ptp(distances)))):
         raise cannot_read(path, "several slices of the series share one position (more than one volume in the series)")
+    usual = float(np.median(gaps))
+    uneven = np.flatnonzero(np.abs(gaps - usual) > SLICE_GAP_TOLERANCE_MM)
+    if uneven.size:
+        n = int(uneven[0])
+        first, second = members[order[n]][0].name, members[order[n + 1]][0].name
+        missing = int(round(float(np.sum(gaps[uneven] / usual - 1.0))))
+        what = f"about {missing} missing slice(s)" if missing >= 1 else "uneven slice gaps"
+        raise cannot_read(
+            path,
+            f"its slices are not equally spaced ({what}: gaps of {usual:.4g} mm, but {gaps[n]:.4g} mm between "
+            f"{first} and {second}; {uneven.size} uneven gap(s)): a volume needs equally spaced slices; add the "
+            "missing slices, or read the series in Slicer's DICOM module, which warns and can regularize it",
+        )
     return tuple(members[n][0] for n in order)
 
 

@@ -1,5 +1,8 @@
 """Read a scalar volume with its geometry, the way Slicer reads it, refusing from its header what would not fit.
 
+One reader per format (:data:`READERS`, each a :class:`Reader`: a probe and a read that checks the header and the
+size before allocating), behind one entry point, :func:`read_volume`.
+
 Every reader returns a :class:`Volume`: the voxel values as a ``(K, J, I)`` array (slowest axis first, like
 ``slicer.util.arrayFromVolume``) and the spacing, origin and axis directions in Slicer's RAS world.
 
@@ -22,31 +25,42 @@ can hold (a gzip stream expands at most about 1032 times), and small enough for 
 import gzip
 import os
 import plistlib
-import re
 import struct
 import tarfile
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional, Union
+from typing import Callable, Optional, Union
 
 import numpy as np
 
-from IsoSimilarityTFLib.chunked import is_dask_array
 from IsoSimilarityTFLib.errors import VolumeReadError
 from IsoSimilarityTFLib.memory import check_memory
 
-from . import chunked_readers, slicer_readers
+from . import chunked_readers, headers, slicer_readers
+from .formatting import format_bytes
 from .read_errors import cannot_read, captured_native_output, first_message
+from .volume import Volume
 
 PathLike = Union[str, "os.PathLike[str]"]
 
-__all__ = ["SUPPORTED_TEXT", "Volume", "VolumeReadError", "read_volume", "real_dataset_path"]
+__all__ = [
+    "READERS",
+    "SUPPORTED_TEXT",
+    "Reader",
+    "Volume",
+    "VolumeReadError",
+    "read_volume",
+    "reader_for",
+    "real_dataset_path",
+]
 
 SUPPORTED_TEXT = (
     ".nrrd, .nhdr, .mha, .mhd, .nii, .nii.gz, .vti, .npy, .inv3, .tif, .tiff, a Zarr store, a folder of TIFF planes, "
     "a DICOM file or a DICOM series folder"
 )
+
+_NRRD_OR_METAIMAGE = (".nrrd", ".nhdr", ".mha", ".mhd")
 
 #: Largest expansion of a deflate (gzip, zlib) stream: a file of N bytes holds at most about 1032 N bytes of voxels.
 _MAX_DEFLATE_RATIO = 1032
@@ -74,61 +88,6 @@ _REAL_DATASETS: dict[str, tuple[str, ...]] = {
 _INV3_AXIAL_DIRECTIONS = np.diag([-1.0, 1.0, 1.0])
 
 
-@dataclass(frozen=True, eq=False)
-class Volume:
-    """A scalar volume with its geometry.
-
-    Attributes:
-        values: voxel values, shape ``(K, J, I)`` = (z, y, x), the file's own dtype (e.g. int16 HU for CT).
-        spacing: voxel size in mm along the i, j, k axes (x, y, z order, i.e. ``values.shape[::-1]`` order).
-        origin: RAS position in mm of the centre of voxel ``values[0, 0, 0]``.
-        directions: shape (3, 3); column ``c`` is the unit RAS direction of index axis ``c`` (i, j, k).
-        name: a short name (the file name without its suffix).
-    """
-
-    values: np.ndarray
-    spacing: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    directions: np.ndarray = None  # type: ignore[assignment]  # identity when omitted
-    name: str = "volume"
-
-    def __post_init__(self) -> None:
-        # A dask array (a volume read lazily, see .chunked_readers) stays lazy.
-        values = self.values if is_dask_array(self.values) else np.asarray(self.values)
-        if values.ndim != 3:
-            raise ValueError(f"Volume values must be 3-D (k, j, i); got shape {values.shape}")
-        directions = np.eye(3) if self.directions is None else np.array(self.directions, dtype=float)
-        if directions.shape != (3, 3):
-            raise ValueError(f"Volume directions must be 3x3; got shape {directions.shape}")
-        spacing = tuple(float(s) for s in self.spacing)
-        origin = tuple(float(o) for o in self.origin)
-        if len(spacing) != 3 or len(origin) != 3:
-            raise ValueError("Volume spacing and origin need 3 values each")
-        object.__setattr__(self, "values", values)
-        object.__setattr__(self, "directions", directions)
-        object.__setattr__(self, "spacing", spacing)
-        object.__setattr__(self, "origin", origin)
-
-    @classmethod
-    def from_ijk_to_ras(cls, values: np.ndarray, ijk_to_ras: np.ndarray, name: str) -> "Volume":
-        """A volume from its values and the 4x4 matrix mapping voxel indices (i, j, k, 1) to RAS millimetres."""
-        axes = np.asarray(ijk_to_ras, dtype=float)[:3, :3]
-        spacing = np.linalg.norm(axes, axis=0)
-        return cls(values, tuple(spacing), tuple(np.asarray(ijk_to_ras)[:3, 3]), axes / spacing, name)
-
-    @property
-    def shape(self) -> tuple[int, int, int]:
-        """Array shape ``(K, J, I)``."""
-        return tuple(int(n) for n in self.values.shape)  # type: ignore[return-value]
-
-    def ijk_to_ras(self) -> np.ndarray:
-        """Return the 4x4 homogeneous matrix mapping voxel indices (i, j, k, 1) to RAS millimetres."""
-        matrix = np.eye(4)
-        matrix[:3, :3] = self.directions * np.asarray(self.spacing)[np.newaxis, :]
-        matrix[:3, 3] = self.origin
-        return matrix
-
-
 def read_volume(path: PathLike, *, n_bins: Optional[int] = None) -> Volume:
     """Read a scalar 3-D volume from ``path`` (see the module docstring for formats).
 
@@ -143,23 +102,52 @@ def read_volume(path: PathLike, *, n_bins: Optional[int] = None) -> Volume:
     path = Path(path)
     if not path.exists():
         raise cannot_read(path, "no such file or directory")
-    if chunked_readers.reads_chunked(path, n_bins):
-        return chunked_readers.read_chunked(path)
-    name = path.name if path.is_dir() else _stem(path)
-    if path.is_dir() or slicer_readers.is_dicom_file(path):
-        return _read_with_slicer(path, slicer_readers.dicom_series(path), name, n_bins)
-    lower = path.name.lower()
-    if lower.endswith(".npy"):
-        return _read_npy(path, name, n_bins)
-    if lower.endswith(".inv3"):
-        return _read_inv3(path, name, n_bins)
-    if lower.endswith(".vti"):
-        return _read_vti(path, name, n_bins)
-    if lower.endswith(slicer_readers.ITK_SUFFIXES):
-        return _read_with_slicer(path, (path,), name, n_bins)
-    raise cannot_read(
-        path, f"unsupported file type '{''.join(path.suffixes) or path.name}' (expected {SUPPORTED_TEXT})"
-    )
+    if not path.is_file() and not path.is_dir():
+        # Opening a FIFO waits for a writer forever; a device would be read without end.
+        raise cannot_read(path, "it is not a regular file (a FIFO, socket or device): give a volume file or folder")
+    reader = reader_for(path)
+    if reader is None:
+        raise cannot_read(
+            path, f"unsupported file type '{''.join(path.suffixes) or path.name}' (expected {SUPPORTED_TEXT})"
+        )
+    return reader.read(path, path.name if path.is_dir() else _stem(path), n_bins)
+
+
+@dataclass(frozen=True)
+class Reader:
+    """One input format behind the one interface every read goes through (:func:`read_volume`).
+
+    Attributes:
+        name: the format, as messages name it.
+        probe: whether a path (an existing file or folder) is of this format; cheap (a suffix, a magic number).
+        read: ``read(path, volume name, n_bins)`` -> :class:`Volume`. It reads the header once, checks from it the
+            size (a 3-D scalar volume that the file can hold and the memory fits, :func:`_check_size`) before any
+            voxel is allocated, then reads the voxels (into memory, or lazily as a dask array when the format or
+            the size asks for it), or raises one :class:`VolumeReadError` (or ``InsufficientMemoryError``) line.
+    """
+
+    name: str
+    probe: Callable[[Path], bool]
+    read: Callable[[Path, str, Optional[int]], Volume]
+
+
+def reader_for(path: Path) -> Optional[Reader]:
+    """The reader of an existing file or folder (the first of :data:`READERS` whose probe accepts it), or None."""
+    return next((reader for reader in READERS if reader.probe(path)), None)
+
+
+def _read_nrrd_metaimage_nifti(path: Path, name: str, n_bins: Optional[int]) -> Volume:
+    """NRRD, MetaImage, NIfTI: Slicer's reader, or the lazy raw reader for a raw file too large for memory."""
+    # The storage fields of a NRRD / MetaImage header, parsed once for the lazy-or-not choice, the size bound and
+    # the exact read of 64-bit integers.
+    stored = headers.stored_voxels(path) if path.name.lower().endswith(_NRRD_OR_METAIMAGE) else None
+    if chunked_readers.reads_chunked(path, n_bins, stored):
+        return chunked_readers.read_chunked(path, stored)
+    return _read_with_slicer(path, (path,), name, n_bins, stored)
+
+
+def _suffix(*suffixes: str) -> Callable[[Path], bool]:
+    return lambda path: path.is_file() and path.name.lower().endswith(suffixes)
 
 
 def real_dataset_path(name: str) -> Optional[Path]:
@@ -184,33 +172,6 @@ def real_dataset_path(name: str) -> Optional[Path]:
 def _stem(path: Path) -> str:
     suffix = ".nii.gz" if path.name.lower().endswith(".nii.gz") else path.suffix
     return path.name[: -len(suffix)] if suffix and len(suffix) < len(path.name) else path.name
-
-
-#: The one header field the size bound needs from a detached header: where its voxels are.
-_DATA_FILE_FIELD = re.compile(r"^(?:data ?file:|ElementDataFile\s*=)[ \t]*(.*?)[ \t]*$", re.I | re.M)
-
-
-def _stored_bytes(path: Path, files: tuple[Path, ...]) -> Optional[int]:
-    """Bytes on disk that hold the voxels, when they are raw, text or deflated (gzip, zlib); else None.
-
-    The header of a ``.nhdr`` / ``.mhd`` names its data file (one field read here); a NRRD in bzip2 (which expands
-    further than deflate) or whose data is a list or pattern of files gives None: only the memory bound applies.
-    """
-    lower = path.name.lower()
-    if not lower.endswith((".nrrd", ".nhdr", ".mhd")):
-        return sum(f.stat().st_size for f in files)
-    with open(path, "rb") as handle:
-        head = handle.read(1 << 16).decode("latin-1").split("\n\n", 1)[0]  # the header only, not the voxels
-    if re.search(r"^encoding:[ \t]*bz", head, re.I | re.M):
-        return None
-    field = _DATA_FILE_FIELD.search(head)
-    if field is None or field.group(1).upper() == "LOCAL":
-        return path.stat().st_size  # the voxels follow the header
-    name = field.group(1)
-    if len(name.split()) > 1 or name.upper().startswith("LIST") or "%" in name:
-        return None
-    data = path.parent / name
-    return path.stat().st_size + (data.stat().st_size if data.is_file() else 0)
 
 
 def _check_size(
@@ -239,27 +200,60 @@ def _check_size(
     if stored_bytes is not None and voxel_bytes > stored_bytes * _MAX_DEFLATE_RATIO:
         raise cannot_read(
             path,
-            f"its header announces {size} voxels of {dtype.name} ({voxel_bytes / 2**20:.0f} MiB), more than its "
+            f"its header announces {size} voxels of {dtype.name} ({format_bytes(voxel_bytes)}), more than its "
             f"{stored_bytes} bytes on disk can hold: it is truncated or corrupt",
         )
     check_memory(tuple(int(d) for d in dimensions[::-1]), n_bins, input_bytes=voxel_bytes)
 
 
-def _read_with_slicer(path: Path, files: tuple[Path, ...], name: str, n_bins: Optional[int]) -> Volume:
+def _read_with_slicer(
+    path: Path,
+    files: tuple[Path, ...],
+    name: str,
+    n_bins: Optional[int],
+    stored: Optional[headers.StoredVoxels] = None,
+) -> Volume:
+    """Read with Slicer's storage node, or (64-bit integers) exactly from the raw file; ``stored``: the storage
+    fields of a NRRD / MetaImage header (None for other formats and DICOM)."""
     header = slicer_readers.read_header(path, files)
-    stored = _stored_bytes(path, header.files)
-    _check_size(path, header.dimensions, header.components, header.dtype, n_bins, stored)
-    if path.name.lower().endswith((".nii", ".nii.gz")):
-        _check_nifti_complete(path, int(np.prod(header.dimensions)) * header.dtype.itemsize)
+    nifti = path.name.lower().endswith((".nii", ".nii.gz"))
+    if stored is not None:
+        on_disk = stored.stored_bytes
+    elif path.name.lower().endswith(_NRRD_OR_METAIMAGE):
+        on_disk = None  # a list or pattern of data files: only the memory bound applies
+    else:
+        on_disk = sum(f.stat().st_size for f in files)
+    _check_size(path, header.dimensions, header.components, header.dtype, n_bins, on_disk)
+    if nifti:
+        _check_nifti(path, header.dimensions)
+    if stored is not None and stored.dtype.kind in "iu" and stored.dtype.itemsize == 8:
+        # Slicer's reader turns 64-bit integers into float32 (exact only below 2^24): read the stored integers.
+        if not stored.raw:
+            raise cannot_read(
+                path,
+                f"it holds {stored.dtype.name} voxels, which Slicer's reader rounds to float32, and they are "
+                "compressed: save them uncompressed (raw), or as int32 or float64",
+            )
+        _check_size(path, header.dimensions, 1, stored.dtype, n_bins, stored.stored_bytes)
+        values, ijk_to_ras = chunked_readers.raw_values(path, stored, chunked_readers.raw_array)
+        return Volume.from_ijk_to_ras(values, ijk_to_ras, name)
     values, ijk_to_ras = slicer_readers.read_image(path, header)
     return Volume.from_ijk_to_ras(values, ijk_to_ras, name)
 
 
-def _check_nifti_complete(path: Path, voxel_bytes: int) -> None:
-    """Refuse a truncated NIfTI file: Slicer's NIfTI reader fills the missing voxels with zeros and says nothing.
+#: NIfTI datatype codes of 64-bit integers (NIFTI_TYPE_INT64, NIFTI_TYPE_UINT64).
+_NIFTI_INT64 = {1024: "int64", 1280: "uint64"}
 
-    The voxels start at ``vox_offset`` (NIfTI-1: float32 at byte 108; NIfTI-2: int64 at byte 168); a ``.nii.gz`` is
-    decompressed as a stream (never held in memory) to count its bytes and to find a truncated or corrupt stream.
+
+def _check_nifti(path: Path, dimensions: tuple[int, int, int]) -> None:
+    """Refuse a truncated NIfTI file (Slicer's NIfTI reader fills missing voxels with zeros and says nothing) and
+    64-bit integers (which it rounds to float32).
+
+    The voxels start at ``vox_offset`` and take ``bitpix`` bits each, the stored type: with ``scl_slope`` /
+    ``scl_inter`` Slicer gives float32 values of int16 (or uint16, ...) voxels, so the bytes on disk are counted
+    from the header's own type, never from the type Slicer returns. NIfTI-1: datatype, bitpix int16 at bytes 70, 72;
+    vox_offset float32 at 108. NIfTI-2: int16 at 12, 14; int64 at 168. A ``.nii.gz`` is decompressed as a stream
+    (never held in memory) to count its bytes and to find a truncated or corrupt stream.
     """
     opener = gzip.open if path.name.lower().endswith(".gz") else open
     try:
@@ -275,15 +269,25 @@ def _check_nifti_complete(path: Path, voxel_bytes: int) -> None:
         raise cannot_read(path, f"the gzip stream is truncated or corrupt ({error})") from None
     if len(head) < 176:
         raise cannot_read(path, "the NIfTI header is truncated")
-    layouts = {348: ("f", 108), 540: ("q", 168)}  # sizeof_hdr: type and byte of vox_offset
+    layouts = {348: (70, "f", 108), 540: (12, "q", 168)}  # sizeof_hdr: byte of datatype, type and byte of vox_offset
     for endian in "<>":
         sizeof_hdr = struct.unpack_from(endian + "i", head)[0]
         if sizeof_hdr in layouts:
-            kind, at = layouts[sizeof_hdr]
-            offset = max(int(struct.unpack_from(endian + kind, head, at)[0]), sizeof_hdr)
+            at_type, kind, at_offset = layouts[sizeof_hdr]
+            datatype, bitpix = struct.unpack_from(endian + "hh", head, at_type)
+            offset = max(int(struct.unpack_from(endian + kind, head, at_offset)[0]), sizeof_hdr)
             break
     else:
         raise cannot_read(path, "not a NIfTI-1 or NIfTI-2 header")
+    if datatype in _NIFTI_INT64:
+        raise cannot_read(
+            path,
+            f"it holds {_NIFTI_INT64[datatype]} voxels, which Slicer's reader rounds to float32: save them as int32, "
+            "float64, or a raw NRRD (read exactly)",
+        )
+    if bitpix <= 0 or bitpix % 8:
+        raise cannot_read(path, f"its header gives {bitpix} bits per voxel")
+    voxel_bytes = int(np.prod(dimensions, dtype=np.float64)) * (bitpix // 8)
     if size - offset < voxel_bytes:
         found = max(size - offset, 0)
         raise cannot_read(path, f"it is truncated: {voxel_bytes} bytes of voxel data expected, {found} found")
@@ -448,3 +452,20 @@ def _member_bytes(archive: tarfile.TarFile, member: tarfile.TarInfo) -> bytes:
     if len(data) != member.size:
         raise EOFError(f"{member.name} is truncated")
     return data
+
+
+#: Every input format, probed in this order (a DICOM file may have any suffix, so it comes before the suffixes).
+READERS: tuple[Reader, ...] = (
+    Reader(
+        "Zarr or TIFF", chunked_readers.is_chunked_format, lambda path, name, n_bins: chunked_readers.read_chunked(path)
+    ),
+    Reader(
+        "DICOM",
+        lambda path: path.is_dir() or slicer_readers.is_dicom_file(path),
+        lambda path, name, n_bins: _read_with_slicer(path, slicer_readers.dicom_series(path), name, n_bins),
+    ),
+    Reader(".npy", _suffix(".npy"), _read_npy),
+    Reader("InVesalius", _suffix(".inv3"), _read_inv3),
+    Reader("VTK image", _suffix(".vti"), _read_vti),
+    Reader("NRRD, MetaImage or NIfTI", _suffix(*slicer_readers.ITK_SUFFIXES), _read_nrrd_metaimage_nifti),
+)

@@ -58,17 +58,23 @@ def preference_value(affinity: np.ndarray, preference: Union[str, float]) -> flo
 
 
 def unconverged_advice(max_iter: int, dampings: Sequence[float]) -> str:
-    """What to try when affinity propagation did not converge, never suggesting a value already tried."""
+    """What to try when affinity propagation did not converge, what works first, never a value already tried.
+
+    AP that oscillates between two groupings (a label map, a volume of few distinct intensities: many isovalues
+    with equal similarities) keeps oscillating however long it runs: on a 33-label atlas, max_iter 1000 and 5000
+    both failed where preference='minimum' converged. So the preference comes first; more damping and more
+    iterations help a slow convergence, not an oscillation. Python names (``preference``, ``damping``,
+    ``max_iter``); the command line shows its own flags.
+    """
     from .options import OPTIONS
 
-    tips = []
+    tips = ["set preference='minimum' (fewer classes; it converges where the default oscillates)"]
+    if max(dampings) < 0.95:
+        tips.append("raise damping to 0.95")
     most_iter = int(OPTIONS["max_iter"].maximum or max_iter)
     if max_iter < most_iter:
-        tips.append(f"raise max_iter (e.g. {min(most_iter, max(1000, 5 * max_iter))})")
-    if max(dampings) < 0.95:
-        tips.append("raise damping (e.g. 0.95)")
-    tips.append("lower the preference (fewer classes, e.g. 'minimum')")
-    return ", ".join(tips[:-1]) + (" or " if len(tips) > 1 else "") + tips[-1]
+        tips.append(f"raise max_iter (e.g. {min(most_iter, max(1000, 5 * max_iter))}) if it was still converging")
+    return ", ".join(tips[:-1]) + (", or " if len(tips) > 1 else "") + tips[-1]
 
 
 def _nearest(members: np.ndarray, n_bins: int) -> np.ndarray:

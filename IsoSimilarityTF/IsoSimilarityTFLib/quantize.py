@@ -155,12 +155,20 @@ def resolved_value_range(value_range, data_range: tuple[float, float]) -> tuple[
     if value_range is None:
         if data_range[0] == data_range[1]:
             raise ValueError(f"the volume is constant (every voxel is {data_range[0]:g}): there is nothing to classify")
-        return float(data_range[0]), float(data_range[1])
-    low, high = OPTIONS["value_range"].check(value_range)
-    if high < data_range[0] or low > data_range[1]:
+        low, high = float(data_range[0]), float(data_range[1])
+    else:
+        low, high = OPTIONS["value_range"].check(value_range)
+        if high < data_range[0] or low > data_range[1]:
+            raise ValueError(
+                f"value_range [{low:g}, {high:g}] lies outside the volume's values [{data_range[0]:g}, "
+                f"{data_range[1]:g}]: every voxel would fall in one bin"
+            )
+    if (high - low) / MAX_BINS < np.finfo(np.float64).tiny:
+        # Bins narrower than the smallest normal float64 (denormal values): the bin arithmetic overflows and every
+        # voxel would land in a meaningless bin.
         raise ValueError(
-            f"value_range [{low:g}, {high:g}] lies outside the volume's values [{data_range[0]:g}, "
-            f"{data_range[1]:g}]: every voxel would fall in one bin"
+            f"the value range [{low:g}, {high:g}] is too narrow for float64 bins (denormal values): scale the "
+            "values first (e.g. values * 1e300)"
         )
     return low, high
 

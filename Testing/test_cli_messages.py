@@ -1,0 +1,78 @@
+"""Messages that say what will work (issue 18, items 12-13): label maps recognised beyond 16 values, advice in the
+command's own spelling, impossible option pairs refused before any work, sizes never printed as "0 MiB"."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from isosimtf import cli, run
+from isosimtf.formatting import format_bytes
+from isosimtf.phantom import head_phantom
+from isosimtf.volume_io import read_volume
+
+ATLASES = [
+    "/usr/share/mricron/templates/aal.nii.gz",  # 117 labels
+    "/usr/share/mricron/templates/HarvardOxford-cort-maxprob-thr0-1mm.nii.gz",  # 49 labels
+]
+
+
+@pytest.mark.parametrize("atlas", ATLASES, ids=["aal", "harvard-oxford"])
+def test_atlases_with_many_labels_are_recognised(atlas: str) -> None:
+    """Before: only integer volumes spanning at most 16 values were taken for label maps."""
+    if not Path(atlas).is_file():
+        pytest.skip("Debian package mricron-data is not installed")
+    values = read_volume(atlas).values
+    assert run.label_count(values) == np.unique(values[:: min(8, values.shape[0] // 32)]).size > 16
+
+
+def test_scans_are_not_label_maps() -> None:
+    from isosimtf.volume_io import real_dataset_path
+
+    for name in ("head-ct", "brain-mri", "brain-stripped"):
+        path = real_dataset_path(name)
+        if path is not None:
+            assert run.label_count(read_volume(path).values) is None, name
+    assert run.label_count(head_phantom(32, seed=0).values) is None
+
+
+def test_convergence_iter_above_max_iter_is_refused_before_any_work(tmp_path: Path, capfd) -> None:
+    """Before: --convergence-iter 500 --max-iter 100 was accepted (and could never converge)."""
+    argv = ["phantom", "-o", str(tmp_path / "out"), "--convergence-iter", "500", "--max-iter", "100", "--no-render"]
+    assert cli.main(argv) == 2
+    err = capfd.readouterr().err
+    assert err.count("\n") == 1 and "--convergence-iter 500 is more than --max-iter 100" in err
+    assert "[1/" not in err and not (tmp_path / "out").exists()
+
+
+def test_sizes_are_never_zero_mib() -> None:
+    assert format_bytes(512) == "512 bytes"
+    assert format_bytes(3 * 1024 + 300) == "3.3 KiB"
+    assert format_bytes(41 * 2**20) == "41 MiB"
+    assert format_bytes(1.5 * 2**30) == "1.5 GiB"
+
+
+@pytest.mark.parametrize(
+    ("name", "header", "field"),
+    [
+        ("z.mha", "ObjectType = Image\nNDims = 3\nDimSize = 5 4 3\nElementSpacing = 0 1 1\nElementType = MET_SHORT\n"
+                  "ElementDataFile = LOCAL\n", "ElementSpacing: 0 1 1"),
+        ("z.nrrd", "NRRD0004\ntype: short\ndimension: 3\nsizes: 5 4 3\nspacings: 1 0 1\nendian: little\n"
+                   "encoding: raw\n\n", "spacings: 1 0 1"),
+    ],
+)  # fmt: skip
+def test_zero_spacing_is_named_not_called_another_format(tmp_path: Path, capfd, name: str, header: str, field) -> None:
+    """Before: "not a MetaImage" for a MetaImage whose ElementSpacing holds a zero."""
+    path = tmp_path / name
+    path.write_bytes(header.encode() + bytes(2 * 5 * 4 * 3))
+    assert cli.main([str(path), "-o", str(tmp_path / "out"), "--no-render", "-q"]) == 2
+    err = capfd.readouterr().err
+    assert f"Cannot read '{path}': its header gives a zero voxel size ({field})" in err and err.count("\n") == 1
+
+
+def test_more_tissues_than_bins_is_refused_before_the_design(tmp_path: Path, capfd) -> None:
+    """Before: --tissues 999 was refused only after the whole design."""
+    argv = ["phantom", "-o", str(tmp_path / "out"), "--tissues", "999", "--no-render"]
+    assert cli.main(argv) == 2
+    err = capfd.readouterr().err
+    assert "--tissues 999 is more than --bins 256" in err and "[1/" not in err

@@ -1,0 +1,85 @@
+"""The default value range leaves out padding and outliers, in one warning line (issue 18, item 4): before, one voxel
+at -1e30 gave an all-black picture and CT padding at -3024 or -32768 took the bins from the tissues, silently.
+Built from the Debian head CT and the phantom."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from IsoSimilarityTFLib.design import design_transfer_function
+from IsoSimilarityTFLib.value_range import robust_value_range
+from isosimtf import cli
+from isosimtf.phantom import head_phantom
+from isosimtf.volume_io import read_volume, real_dataset_path
+
+
+def _head_ct() -> np.ndarray:
+    path = real_dataset_path("head-ct")
+    if path is None:
+        pytest.skip("Debian package invesalius-examples is not installed")
+    return read_volume(path).values
+
+
+@pytest.mark.parametrize("name", ["head-ct", "brain-mri", "brain-stripped"])
+def test_clean_scans_keep_their_whole_range(name: str) -> None:
+    """MRI background at 0 and CT air at -1024 are not padding: nothing is left out, no warning."""
+    path = real_dataset_path(name)
+    if path is None:
+        pytest.skip(f"real dataset {name} not installed")
+    values = read_volume(path).values
+    robust = robust_value_range(values)
+    assert robust.value_range == (float(values.min()), float(values.max())) and robust.warning() is None
+
+
+@pytest.mark.parametrize("padding", [-3024, -2048, -32768])
+def test_ct_padding_is_left_out_and_the_design_is_the_unpadded_one(padding: int) -> None:
+    ct = _head_ct()[::2, ::2, ::2].copy()
+    padded = ct.copy()
+    padded[:, :, :20], padded[:, :, -20:] = padding, padding  # outside the field of view
+    robust = robust_value_range(padded)
+    assert robust.value_range == (float(ct.min()), float(ct.max()))
+    count = int(np.count_nonzero(padded == padding))
+    assert robust.padding == ((float(padding), count),)
+    assert f"leaving out {count} padding voxels at {padding}" in robust.warning()
+    assert "--range LOW HIGH" in robust.warning() and "value_range=(" in robust.warning("value_range=(low, high)")
+    ours = design_transfer_function(padded, value_range=robust.value_range, tissues="all")
+    clean = design_transfer_function(ct, tissues="all")
+    assert len(ours.classes) == pytest.approx(len(clean.classes), abs=2)
+
+
+def test_one_outlier_voxel_no_longer_blacks_out_the_picture(tmp_path: Path, capfd) -> None:
+    values = head_phantom(32, seed=0).values.astype(np.float32)
+    values[2, 3, 4] = -1e30
+    np.save(tmp_path / "outlier.npy", values)
+    code = cli.main([str(tmp_path / "outlier.npy"), "-o", str(tmp_path / "out"), "--no-render", "-q"])
+    err = capfd.readouterr().err
+    assert code == 0
+    (line,) = [line for line in err.splitlines() if "isovalue bins cover" in line]
+    assert "leaving out 1 outlier voxel(s) from -1e+30" in line and "--range LOW HIGH" in line
+    assert "shows nothing" not in err
+    document = json.loads((tmp_path / "out" / "classes.json").read_text())
+    assert document["value_range"] == [float(np.delete(values.ravel(), 2 * 32 * 32 + 3 * 32 + 4).min()),
+                                       float(values.max())]  # fmt: skip
+    assert sum(c["visible"] for c in document["classes"]) >= 3  # tissues shown, not the outlier alone
+
+    code = cli.main([str(tmp_path / "outlier.npy"), "-o", str(tmp_path / "own"), "--no-render", "-q",
+                     "--range", "-2000", "2000"])  # fmt: skip
+    assert code == 0 and "isovalue bins cover" not in capfd.readouterr().err  # --range overrides the rule
+    assert json.loads((tmp_path / "own" / "classes.json").read_text())["value_range"] == [-2000.0, 2000.0]
+
+
+def test_label_maps_and_binary_masks_are_not_padding() -> None:
+    mask = np.zeros((30, 30, 30), np.uint8)
+    mask[10:20, 10:20, 10:20] = 1
+    assert not robust_value_range(mask).excludes
+
+
+def test_volumes_read_lazily_get_the_same_range() -> None:
+    da = pytest.importorskip("dask.array")
+    values = head_phantom(32, seed=0).values.copy()
+    values[:, :, :4] = -3024
+    robust = robust_value_range(values)
+    assert robust.excludes and robust.padding[0][0] == -3024
+    assert robust_value_range(da.from_array(values, chunks=8)) == robust
