@@ -5,6 +5,8 @@ from typing import Optional
 
 import numpy as np
 
+from .options import MAX_BINS, OPTIONS
+
 # Voxels converted to float64 at a time: bounds the temporary memory of float volumes to ~64 MB.
 _SLAB_VOXELS = 1 << 23
 # Integer volumes whose value span is at most this many values are quantized through a lookup table.
@@ -142,7 +144,6 @@ def bins_dtype(n_bins: int) -> np.dtype:
 
 def checked_n_bins(n_bins) -> int:
     """``n_bins`` as an int, checked against its entry in the options table (2 to ``MAX_BINS``)."""
-    from .options import OPTIONS  # the table imports this module for MAX_BINS
 
     return OPTIONS["n_bins"].check(n_bins)
 
@@ -150,7 +151,6 @@ def checked_n_bins(n_bins) -> int:
 def resolved_value_range(value_range, data_range: tuple[float, float]) -> tuple[float, float]:
     """The range to quantize over: the volume's own ``data_range`` when ``value_range`` is None (refused when the
     volume is constant), else ``value_range`` checked and refused when it misses ``data_range`` altogether."""
-    from .options import OPTIONS  # the table imports this module for MAX_BINS
 
     if value_range is None:
         if data_range[0] == data_range[1]:
