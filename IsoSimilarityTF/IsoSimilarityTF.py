@@ -434,7 +434,10 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
         self.ui.progressBar.setFormat(f"{message} (%p%)")
 
     def _logResult(self, volume, design) -> None:
-        self.addLog(self.logic.summaryText(design))
+        summary = self.logic.summaryText(design)
+        if self.logic.range_warning:
+            summary += " " + _("Note: {warning}.").format(warning=self.logic.range_warning)
+        self.addLog(summary)
         logging.info(f"IsoSimilarityTF timings for {volume.GetName()}: {self.logic.timingsText(design)}")
 
     def _pollJob(self) -> None:

@@ -123,3 +123,24 @@ def test_the_job_folder_is_under_the_sessions_temporary_folder(slicer_app, tmp_p
     finally:
         job.close()
     assert os.listdir(tmp_path / "slicer-temporary") == []
+
+
+def test_an_apply_in_slicer_leaves_padding_out_of_the_range_as_the_command_line_does(slicer_app):
+    """The module uses the command line's default range (issue 18, item 4): CT padding outside the field of view is
+    left out of the bins and the panel is told what was left out; a range given by the caller is kept."""
+    import numpy as np
+
+    from isosimtf.phantom import head_phantom
+
+    ct = head_phantom(32, seed=0).values
+    padded = ct.copy()
+    padded[:, :, :4] = -3024
+    session = DesignSession(slicer_app.volume_rendering_logic)
+    volume = slicer_app.add_volume(padded, name="padded")
+    design = session.run(volume, {})
+    assert design.value_range == (float(ct.min()), float(ct.max()))
+    assert "padding voxels at -3024" in session.range_warning and "value_range=" in session.range_warning
+    design = session.run(volume, {"value_range": (-3024.0, float(ct.max()))})
+    assert design.value_range == (-3024.0, float(ct.max())) and session.range_warning is None
+    session.run(slicer_app.add_volume(ct, name="clean"), {})
+    assert session.range_warning is None

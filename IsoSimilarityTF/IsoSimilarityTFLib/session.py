@@ -13,6 +13,7 @@ from . import mrml
 from .cells import octree_levels
 from .design import TransferFunctionDesign, design_transfer_function
 from .options import check_options
+from .value_range import robust_value_range
 from .worker import DesignProcess
 
 # Similarity matrices kept for volumes designed in this session (4096 bins: 128 MB each).
@@ -236,6 +237,8 @@ class DesignSession:
         self.volume_node = None
         self.property_node = None
         self.design: Optional[TransferFunctionDesign] = None
+        # What the last Apply's default value range left out (padding, outliers), for the panel to say; or None.
+        self.range_warning: Optional[str] = None
         # Similarity matrices of this session's runs by property node ID (the scene stores the design without it).
         self._similarities = {}
 
@@ -257,12 +260,25 @@ class DesignSession:
         ``options["tissues"]`` may be a Detail setting (see :func:`grouping_of_detail`)."""
         values, spacing = volume_values(volume_node)
         options, _ = fit_levels(values.shape, options or {})
-        options, detail = _engine_grouping(options)
+        options, detail = _engine_grouping(self._robust_range(values, options))
         design = design_transfer_function(values, spacing, progress=progress, **options)
         if detail is not None:
             regroup_design(design, detail)
         self.apply(volume_node, design)
         return design
+
+    def _robust_range(self, values, options: dict) -> dict:
+        """The options with the command line's default value range (:func:`.value_range.robust_value_range`: CT
+        padding and outlier voxels left out of the bins) unless a range is given; what it left out is kept in
+        :attr:`range_warning`."""
+        self.range_warning = None
+        if options.get("value_range") is not None:
+            return options
+        robust = robust_value_range(values)
+        if not robust.excludes:
+            return options
+        self.range_warning = robust.warning("value_range=(low, high) in IsoSimilarityTFLib.design_transfer_function")
+        return {**options, "value_range": robust.value_range}
 
     def runs_in_process(self, volume_node, options: Optional[dict] = None) -> bool:
         """Whether :meth:`run` (in this process) should design the volume, rather than :meth:`start` (a child
@@ -276,7 +292,7 @@ class DesignSession:
         """Start designing in a child process (see :mod:`.worker`); give the job to :meth:`finish` when it ends."""
         values, spacing = volume_values(volume_node)
         options, _ = fit_levels(values.shape, options or {})
-        options, detail = _engine_grouping(options)
+        options, detail = _engine_grouping(self._robust_range(values, options))
         job = DesignProcess(
             values, spacing, options, python=self.python_executable(), temporary_folder=self.temporary_folder()
         )
