@@ -128,7 +128,6 @@ def test_the_job_folder_is_under_the_sessions_temporary_folder(slicer_app, tmp_p
 def test_an_apply_in_slicer_leaves_padding_out_of_the_range_as_the_command_line_does(slicer_app):
     """The module uses the command line's default range (issue 18, item 4): CT padding outside the field of view is
     left out of the bins and the panel is told what was left out; a range given by the caller is kept."""
-    import numpy as np
 
     from isosimtf.phantom import head_phantom
 
