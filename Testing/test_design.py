@@ -238,3 +238,21 @@ def test_build_classes_ranks_and_background():
     assert classes[0].background and not any(c.background for c in classes[1:])
     assert classes[1].value_ranges == [[2.0, 5.0]]
     assert runs(np.array([1, 2, 3, 7, 9, 10])) == [(1, 3), (7, 7), (9, 10)]
+
+
+def test_python_api_takes_what_a_user_types_or_says_why(phantom):
+    """Issue 18, item 14: one number is an isotropic spacing, a preference in any letter case is taken, and a
+    visibility that is not a bool is refused (bool("no") is True)."""
+    from IsoSimilarityTFLib import cluster_isovalues, similarity_matrix
+
+    values = phantom.values[::4, ::4, ::4]
+    assert design_transfer_function(values, 2.0).spacing == (2.0, 2.0, 2.0)
+    with pytest.raises(ValueError, match="spacing"):
+        design_transfer_function(values, "2 mm")
+    similarity = similarity_matrix(quantize(values, 32).bins, 32)
+    assert cluster_isovalues(similarity, preference="MEDIAN").n_classes == cluster_isovalues(similarity).n_classes
+    design = design_transfer_function(values)
+    with pytest.raises(ValueError, match="visible"):
+        design.set_class(1, visible="no")
+    design.set_class(1, visible=False)
+    assert not design.classes[1].visible

@@ -47,6 +47,7 @@ class ClusteringResult:
 def preference_value(affinity: np.ndarray, preference: Union[str, float]) -> float:
     """The AP preference: median or minimum of the off-diagonal affinities, or the number given."""
     if isinstance(preference, str):
+        preference = preference.strip().lower()  # any letter case, as the options table takes it
         if preference not in PREFERENCES:
             raise ValueError(f"preference must be one of {PREFERENCES} or a number; got {preference!r}")
         off_diagonal = affinity[~np.eye(affinity.shape[0], dtype=bool)]

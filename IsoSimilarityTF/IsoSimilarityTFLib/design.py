@@ -444,6 +444,8 @@ def _apply_edit(
             raise ValueError(f"opacity must be in [0, 1]; got {opacity!r}")
         target.opacity = float(opacity)
     if visible is not None:
+        if not isinstance(visible, (bool, np.bool_)):  # bool("no") is True: a plausible wrong answer
+            raise ValueError(f"visible must be True or False; got {visible!r}")
         target.visible = bool(visible)
 
 
@@ -489,9 +491,14 @@ def _detect_kind(
 def _check_spacing(spacing) -> Optional[tuple[float, float, float]]:
     if spacing is None:
         return None
-    spacing = tuple(float(s) for s in spacing)
+    if np.ndim(spacing) == 0:  # one number: isotropic voxels
+        spacing = (spacing,) * 3
+    try:
+        spacing = tuple(float(s) for s in spacing)
+    except (TypeError, ValueError):
+        raise ValueError(f"spacing must be three positive numbers (mm) or one; got {spacing!r}") from None
     if len(spacing) != 3 or not all(np.isfinite(s) and s > 0 for s in spacing):
-        raise ValueError(f"spacing must be three positive numbers (mm); got {spacing!r}")
+        raise ValueError(f"spacing must be three positive numbers (mm) or one; got {spacing!r}")
     return spacing
 
 
@@ -523,7 +530,7 @@ def design_transfer_function(
     Args:
         values: 3-D scalar volume (any axis order; a ``dask.array`` for volumes larger than memory), or an already
             quantized volume.
-        spacing: voxel spacing in mm, used for the opacity unit distance.
+        spacing: voxel spacing ``(x, y, z)`` in mm, or one number for cubic voxels (the look's preview is made in mm).
         progress: called as ``progress(stage, fraction, message)``; raising from it cancels the design.
         **options: ``n_bins``, ``value_range``, ``crossing``, ``normalization``, ``levels``, ``preference``,
             ``damping``, ``max_iter``, ``convergence_iter``, ``max_classes``, ``background``, ``unconverged``
