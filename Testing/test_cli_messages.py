@@ -76,3 +76,16 @@ def test_more_tissues_than_bins_is_refused_before_the_design(tmp_path: Path, cap
     assert cli.main(argv) == 2
     err = capfd.readouterr().err
     assert "--tissues 999 is more than --bins 256" in err and "[1/" not in err
+
+
+def test_extremely_anisotropic_voxels_get_a_warning(tmp_path: Path, capfd) -> None:
+    """Issue 18, item 14: 0.05 x 0.05 x 40 mm voxels rendered black without a word; now one warning line says why."""
+    from isosimtf.volume import Volume
+    from volume_writers import write_volume
+
+    path = tmp_path / "thin.nrrd"
+    write_volume(Volume(head_phantom(24, seed=0).values, (0.05, 0.05, 40.0), (0.0, 0.0, 0.0), name="thin"), path)
+    assert cli.main([str(path), "-o", str(tmp_path / "out"), "--no-render", "-q"]) == 0
+    (line,) = [line for line in capfd.readouterr().err.splitlines() if "times longer" in line]
+    assert "0.05 x 0.05 x 40 mm" in line and "800 times" in line and "resample" in line
+    assert not [m for m in run._input_warnings({"spacing": [1.0, 1.0, 3.0]}, 256) if "times longer" in m]

@@ -323,6 +323,11 @@ def label_count(values: np.ndarray) -> Optional[int]:
     return int(labels.size) if equal > LABEL_MAP_EQUAL_NEIGHBOURS else None
 
 
+#: Voxels this many times longer along one axis than another (e.g. 0.05 x 0.05 x 40 mm, a thick-slice stack of
+#: fine images) render badly: the ray caster's steps follow the smallest spacing (issue 18, item 14).
+MAX_ANISOTROPY = 20.0
+
+
 def _input_warnings(info: dict, n_bins: int, values: Optional[np.ndarray] = None) -> list[str]:
     """Warnings about the input that the design cannot fix: a label map, or a clustering that will take minutes."""
     warnings = []
@@ -332,6 +337,13 @@ def _input_warnings(info: dict, n_bins: int, values: Optional[np.ndarray] = None
             f"the volume looks like a label map (at least {labels} distinct integer values, piecewise constant): "
             "isovalue similarity groups intensities of a continuous scan; label maps are better shown with their own "
             "colour table (if affinity propagation does not converge on it, use --preference minimum)"
+        )
+    spacing = info.get("spacing")
+    if spacing and min(spacing) > 0 and max(spacing) / min(spacing) > MAX_ANISOTROPY:
+        warnings.append(
+            f"voxels of {' x '.join(f'{s:g}' for s in spacing)} mm are {max(spacing) / min(spacing):.0f} times longer "
+            "along one axis than another: the pictures and Slicer's ray casting, which step by the smallest "
+            "spacing, may come out dark or blocky; resample the volume to less anisotropic voxels for rendering"
         )
     if n_bins > SLOW_CLUSTERING_BINS:
         warnings.append(
