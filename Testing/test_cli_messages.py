@@ -80,8 +80,9 @@ def test_more_tissues_than_bins_is_refused_before_the_design(tmp_path: Path, cap
 
 def test_extremely_anisotropic_voxels_get_a_warning(tmp_path: Path, capfd) -> None:
     """Issue 18, item 14: 0.05 x 0.05 x 40 mm voxels rendered black without a word; now one warning line says why."""
-    from isosimtf.volume import Volume
     from volume_writers import write_volume
+
+    from isosimtf.volume import Volume
 
     path = tmp_path / "thin.nrrd"
     write_volume(Volume(head_phantom(24, seed=0).values, (0.05, 0.05, 40.0), (0.0, 0.0, 0.0), name="thin"), path)
