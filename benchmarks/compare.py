@@ -65,7 +65,7 @@ from tissue_visibility import (  # noqa: E402
     tissue_summary,
     tissue_weights,
 )
-from volume_panel import PANEL, ct_storage  # noqa: E402
+from volume_panel import HEAD_CT, PANEL, ct_storage  # noqa: E402
 
 REPO = HERE.parent
 RESULTS = HERE / "results"
@@ -130,7 +130,6 @@ def _file(path: str) -> Callable[[], tuple]:
     return load
 
 
-HEAD_CT = "/usr/share/doc/invesalius-examples/examples/Cranium.inv3"
 COLIN = "/usr/share/mricron/templates/ch2.nii.gz"
 COLIN_BET = "/usr/share/mricron/templates/ch2bet.nii.gz"
 

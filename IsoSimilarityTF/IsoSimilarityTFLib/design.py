@@ -469,20 +469,19 @@ def _detect_kind(
     if modality is not None:
         return detect_kind([], [], hierarchy.noise_sd, modality)
     groups = hierarchy.groups(hierarchy.auto) if hierarchy.order else []
-    tissue_of_bin = np.full(labels.size, -1)
-    bins = np.arange(labels.size, dtype=np.float64)
-    means, voxels = [], []
-    for members in groups:
-        inside = np.isin(labels, members)
-        count = float(bin_voxels[inside].sum())
-        means.append(float(bin_voxels[inside] @ bins[inside]) / count if count else float(bins[inside].mean()))
-        voxels.append(count)
+    n = len(groups)
+    group_of_bin = np.full(labels.size, n)  # the background's bins: a group of their own, left out below
+    for group, members in enumerate(groups):
+        group_of_bin[np.isin(labels, members)] = group
+    means = class_mean_values(group_of_bin, bin_voxels, np.arange(labels.size + 1) - 0.5, n + 1)[:n]
+    voxels = np.bincount(group_of_bin, weights=bin_voxels, minlength=n + 1)[:n]
     order = np.argsort(means)
-    for rank, group in enumerate(order):
-        tissue_of_bin[np.isin(labels, groups[group])] = rank
+    rank = np.full(n + 1, -1)
+    rank[order] = np.arange(n)
+    tissue_of_bin = rank[group_of_bin]  # tissues in intensity order, -1 for the background
     return detect_kind(
-        np.asarray(means)[order],
-        np.asarray(voxels)[order],
+        means[order],
+        voxels[order],
         hierarchy.noise_sd,
         encloses=lambda outer, inner: enclosure(preview, tissue_of_bin, outer, inner),
     )
@@ -586,7 +585,8 @@ def design_transfer_function(
             quantized = quantize(values, opts["n_bins"], opts["value_range"])
 
     # A streamed volume's voxel counts and background-contact planes are gathered during the similarity's pass.
-    tap = SlabTap(shape, quantized.n_bins, preview_steps=preview_steps(shape, spacing)[0]) if chunked else None
+    steps, preview_spacing = preview_steps(shape, spacing)
+    tap = SlabTap(shape, quantized.n_bins, preview_steps=steps) if chunked else None
     with stage("similarity", "measuring isosurface similarity"):
         similarity = isovalue_similarity(
             quantized.bins,
@@ -646,7 +646,7 @@ def design_transfer_function(
         if tap is None:
             preview = preview_bins(quantized.bins, spacing, quantized.n_bins)
         else:
-            preview = Preview(tap.preview(), preview_steps(shape, spacing)[1], quantized.n_bins)
+            preview = Preview(tap.preview(), preview_spacing, quantized.n_bins)
         kind = _detect_kind(hierarchy, clusters.labels, bin_voxels, preview, opts["modality"])
         # The tissues' look (with its visibility step) is part of the stage: the Detail slider redoes both.
         design = TransferFunctionDesign(

@@ -262,7 +262,6 @@ def default_look(
 
     # 2. The monotone start, 3. the visibility step.
     tissue_opacity = np.zeros(n_tissues)
-    labels = None if labels is None else np.asarray(labels)
     for rank, t in enumerate(shown_sorted):
         place = rank / (len(shown_sorted) - 1) if len(shown_sorted) > 1 else 1.0
         tissue_opacity[t] = OPACITY_LOW + (OPACITY_HIGH - OPACITY_LOW) * place
@@ -284,9 +283,9 @@ def default_look(
         else:
             tissue_opacity = step.outer_surface(tissue_opacity, real_shown)
         tissue_opacity = _follow_real(tissue_opacity, shown_sorted, real_shown)
-        shares = step.shares(tissue_opacity)
-        # Each class takes the mean opacity of its bins: a feature's partial-volume ramp reaches into its classes.
         bin_opacity = step.bin_opacity(tissue_opacity)
+        shares = step.shares(bin_opacity)
+        # Each class takes the mean opacity of its bins: a feature's partial-volume ramp reaches into its classes.
         class_opacity = np.bincount(labels, weights=bin_opacity, minlength=len(classes)) / np.maximum(
             np.bincount(labels, minlength=len(classes)), 1
         )
@@ -384,12 +383,16 @@ class _VisibilityStep:
 
     def light(self, opacity: np.ndarray) -> np.ndarray:
         """``(n_tissues,)`` light each tissue sends to the eye over the six views, with these opacities per mm."""
-        light = visibility_histogram(self.preview, self.bin_opacity(opacity))
+        return self._light_of_bins(self.bin_opacity(opacity))
+
+    def _light_of_bins(self, bin_opacity: np.ndarray) -> np.ndarray:
+        light = visibility_histogram(self.preview, bin_opacity)
         return np.bincount(self.tissue_of_bin, weights=light, minlength=self.n_tissues)
 
-    def shares(self, opacity: np.ndarray) -> np.ndarray:
-        """``(n_tissues,)`` share of the picture each tissue gives (0 everywhere for an empty picture)."""
-        light = self.light(opacity)
+    def shares(self, bin_opacity: np.ndarray) -> np.ndarray:
+        """``(n_tissues,)`` share of the picture each tissue gives with ``bin_opacity`` (:meth:`bin_opacity`); 0
+        everywhere for an empty picture."""
+        light = self._light_of_bins(bin_opacity)
         total = light.sum()
         return light / total if total > 0 else light
 

@@ -135,7 +135,6 @@ def first_met(preview: Preview, group_of_bin: np.ndarray, groups: Sequence[int])
     for axis in range(3):
         mask = np.moveaxis(inside, axis, 0)
         labels = np.moveaxis(group, axis, 0)
-        several = np.zeros(mask.shape[1:], dtype=bool)
         seen = np.zeros(mask.shape[1:], dtype=np.int64)
         for g in groups:  # rays that cross two groups or more
             seen += np.moveaxis(group == g, axis, 0).any(axis=0)
