@@ -248,6 +248,17 @@ def test_the_same_ct_in_any_storage_gets_the_same_look(storages):
     assert [t.to_dict() for t in storages["float"].tissues] == [t.to_dict() for t in reference.tissues]
 
 
+def test_the_step_measures_the_transfer_function_it_writes(storages):
+    """The tissues' shares of the picture are those of the written transfer function's bins, rendered again here,
+    on the CT (a feature with its partial-volume ramp) and after regrouping."""
+    design = TransferFunctionDesign.from_json(storages["hu"].to_json())
+    for tissues in ("auto", design.hierarchy.auto + 2):
+        design.regroup(tissues)
+        light = visibility_histogram(design.preview, design.bin_looks()[1])
+        by_tissue = np.bincount(design.tissue_of_class[design.labels], weights=light, minlength=len(design.tissues))
+        np.testing.assert_allclose([t.picture_share for t in design.tissues], by_tissue / by_tissue.sum(), atol=1e-12)
+
+
 def test_soft_tissue_on_a_ct_is_no_veil(storages):
     design = storages["hu"]
     soft = next(c for c in design.classes if any(lo <= 60 < hi for lo, hi in c.value_ranges))

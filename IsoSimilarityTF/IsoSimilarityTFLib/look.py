@@ -270,7 +270,7 @@ def default_look(
             tissue_opacity[t] = OPACITY_LOW  # what a user who shows it starts from
     shares = None
     if preview is not None and labels is not None and shown_sorted:
-        step = _VisibilityStep(preview, tissue_of_class[np.asarray(labels)], shown_sorted, tissue_bin, noise_sd)
+        step = _VisibilityStep(preview, labels, tissue_of_class, shown_sorted, tissue_bin, noise_sd)
         real_shown = [t for t in shown_sorted if share[t] >= REAL_SHARE]
         if kind == "ct":
             ordered = np.array(foreground)
@@ -283,12 +283,9 @@ def default_look(
         else:
             tissue_opacity = step.outer_surface(tissue_opacity, real_shown)
         tissue_opacity = _follow_real(tissue_opacity, shown_sorted, real_shown)
-        bin_opacity = step.bin_opacity(tissue_opacity)
-        shares = step.shares(bin_opacity)
-        # Each class takes the mean opacity of its bins: a feature's partial-volume ramp reaches into its classes.
-        class_opacity = np.bincount(labels, weights=bin_opacity, minlength=len(classes)) / np.maximum(
-            np.bincount(labels, minlength=len(classes)), 1
-        )
+        # The picture of the transfer function written: a feature's partial-volume ramp reaches into its classes.
+        class_opacity = step.class_opacity(tissue_opacity)
+        shares = step.shares(step.bin_opacity(tissue_opacity))
 
     # Colours: one per tissue (per class on CT).
     tissue_color = {t: list(BACKGROUND_GREY) for t in range(n_tissues)}
@@ -346,30 +343,43 @@ def _follow_real(opacity: np.ndarray, shown: list[int], real: list[int]) -> np.n
 class _VisibilityStep:
     """Renders of one design's preview with per-tissue opacities (step 3 of the module notes).
 
+    Every render is of the transfer function the design writes: class opacities, then every step softened over the
+    noise width (:meth:`bin_opacity`, the same as :meth:`.TransferFunctionDesign.bin_looks`).
+
     Args:
         preview: the low-resolution volume.
-        tissue_of_bin: ``(n_bins,)`` tissue of each bin.
+        labels: ``(n_bins,)`` class of each bin.
+        tissue_of_class: ``(n_classes,)`` tissue of each class.
         shown: the shown tissues (the others stay clear).
         tissue_bin: ``(n_tissues,)`` mean bin of each tissue.
         noise_sd: noise width in bins.
     """
 
     def __init__(
-        self, preview: Preview, tissue_of_bin: np.ndarray, shown: list[int], tissue_bin: np.ndarray, noise_sd: float
+        self,
+        preview: Preview,
+        labels: np.ndarray,
+        tissue_of_class: np.ndarray,
+        shown: list[int],
+        tissue_bin: np.ndarray,
+        noise_sd: float,
     ) -> None:
         self.preview = preview
-        self.tissue_of_bin = tissue_of_bin
-        self.n_tissues = int(tissue_of_bin.max()) + 1
+        self.labels = np.asarray(labels)
+        self.tissue_of_bin = np.asarray(tissue_of_class)[self.labels]
+        self.n_tissues = int(self.tissue_of_bin.max()) + 1
+        self.bins_of_class = np.bincount(self.labels, minlength=len(tissue_of_class))
         self.shown = np.isin(np.arange(self.n_tissues), shown)
         self.tissue_bin = tissue_bin
         self.noise_sd = float(noise_sd)
-        self.rays = preview.rays_crossing(tissue_of_bin, self.n_tissues)
+        self.rays = preview.rays_crossing(self.tissue_of_bin, self.n_tissues)
         # Partial volume of a feature: (first bin, lower tissue, feature) where its ramp starts (see show_features).
         self.ramps: list[tuple[int, int, int]] = []
+        self._last_render: tuple[Optional[np.ndarray], np.ndarray] = (None, np.zeros(0))
 
-    def bin_opacity(self, opacity: np.ndarray) -> np.ndarray:
-        """``(n_bins,)`` opacity per mm of each bin: its tissue's (0 where not shown), a feature's partial volume
-        ramped up to it, and every step softened over the noise width (:func:`ramped_opacity`)."""
+    def class_opacity(self, opacity: np.ndarray) -> np.ndarray:
+        """``(n_classes,)`` opacity per mm of each class: its tissue's (0 where not shown); in a feature's partial
+        volume, the mean over the class's bins of a ramp up to the feature's opacity."""
         per_bin = np.where(self.shown, opacity, 0.0)[self.tissue_of_bin]
         for start, lower, feature in self.ramps:
             end = int(np.flatnonzero(self.tissue_of_bin == feature)[0])
@@ -379,15 +389,27 @@ class _VisibilityStep:
             share = (inside - self.tissue_bin[lower]) / (self.tissue_bin[feature] - self.tissue_bin[lower])
             ramp = opacity[lower] + (opacity[feature] - opacity[lower]) * share
             per_bin[inside] = np.maximum(per_bin[inside], ramp)
-        return ramped_opacity(per_bin, max(self.noise_sd, 1.0))
+        return np.bincount(self.labels, weights=per_bin, minlength=self.bins_of_class.size) / np.maximum(
+            self.bins_of_class, 1
+        )
+
+    def bin_opacity(self, opacity: np.ndarray) -> np.ndarray:
+        """``(n_bins,)`` opacity per mm of each bin, as the transfer function has it: its class's
+        (:meth:`class_opacity`), every step softened over the noise width (:func:`ramped_opacity`)."""
+        return ramped_opacity(self.class_opacity(opacity)[self.labels], self.noise_sd)
 
     def light(self, opacity: np.ndarray) -> np.ndarray:
         """``(n_tissues,)`` light each tissue sends to the eye over the six views, with these opacities per mm."""
         return self._light_of_bins(self.bin_opacity(opacity))
 
     def _light_of_bins(self, bin_opacity: np.ndarray) -> np.ndarray:
+        last_opacity, last_light = self._last_render
+        if last_opacity is not None and np.array_equal(last_opacity, bin_opacity):
+            return last_light  # the loop's last render is often the final picture
         light = visibility_histogram(self.preview, bin_opacity)
-        return np.bincount(self.tissue_of_bin, weights=light, minlength=self.n_tissues)
+        light = np.bincount(self.tissue_of_bin, weights=light, minlength=self.n_tissues)
+        self._last_render = (bin_opacity, light)
+        return light
 
     def shares(self, bin_opacity: np.ndarray) -> np.ndarray:
         """``(n_tissues,)`` share of the picture each tissue gives with ``bin_opacity`` (:meth:`bin_opacity`); 0
