@@ -15,6 +15,7 @@ from IsoSimilarityTFLib.tissues import (
     contiguous_assignment,
     fit_intensity_model,
     kmeans_1d,
+    log_likelihood_bound,
 )
 from isosimtf.phantom import head_phantom
 
@@ -230,3 +231,55 @@ def test_the_largest_count_whose_gain_pays_is_kept():
     model = choose_intensity_model(counts)
     assert model.n_tissues == 3
     np.testing.assert_allclose(np.sort(model.means), [50, 130, 210], atol=1.0)
+
+
+def _choose_by_fitting_every_count(counts, max_tissues=8, relative_gain=0.5):
+    """The rule written out: fit every count from both starts, gains over the best earlier fit, the largest count
+    whose gain reaches the share of the largest gain."""
+    x = np.arange(counts.size, dtype=np.float64)
+    models = []
+    for k in range(1, max_tissues + 1):
+        starts = [kmeans_1d(x, counts, k)]
+        if models:
+            residual = counts / counts.sum() - models[-1].densities(x).sum(axis=1)
+            starts.append(np.append(models[-1].means, float(np.argmax(residual))))
+        models.append(max((fit_intensity_model(counts, s) for s in starts), key=lambda m: m.log_likelihood))
+    likelihood = np.array([m.log_likelihood for m in models])
+    gains = likelihood[1:] - np.maximum.accumulate(likelihood)[:-1]
+    if gains.max() <= 0:
+        return models[0]
+    return models[int(np.flatnonzero(gains >= relative_gain * gains.max()).max()) + 1]
+
+
+@pytest.mark.parametrize(
+    "tissues",
+    [
+        # CT-like: air cut away, a large soft tissue, a small dense tail (the counts stop early).
+        (([60, 160], 3.0, [200000, 20000]),),
+        # MRI-like: overlapping tissues of similar size (every count is fitted).
+        (([70, 100, 130], 9.0, [40000, 60000, 50000]),),
+        (([40, 90, 150, 210], 5.0, [30000, 5000, 40000, 3000]),),
+    ],
+)
+def test_stopping_early_chooses_what_fitting_every_count_chooses(tissues):
+    ((means, sd, counts_of),) = tissues
+    counts = histogram(means, sd, counts_of, seed=3)
+    fast, slow = choose_intensity_model(counts), _choose_by_fitting_every_count(counts)
+    assert fast.n_tissues == slow.n_tissues
+    np.testing.assert_array_equal(fast.means, slow.means)
+    assert fast.sd == slow.sd
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_no_model_beats_the_likelihood_bound(seed):
+    rng = np.random.default_rng(seed)
+    counts = histogram(rng.uniform(20, 230, 3), rng.uniform(0.5, 10), rng.integers(100, 50000, 3), seed=seed)
+    bound = log_likelihood_bound(counts)
+    for k in range(1, 6):
+        assert fit_intensity_model(counts, kmeans_1d(np.arange(256.0), counts, k)).log_likelihood <= bound
+    # Nor does the sharpest model allowed, the histogram itself smoothed by half a bin, and it comes close.
+    x = np.arange(256.0)
+    density = sum(c * np.exp(-0.5 * ((x - b) / 0.5) ** 2) / np.sqrt(2 * np.pi * 0.25) for b, c in enumerate(counts))
+    share = counts / counts.sum()
+    sharp = float(share[counts > 0] @ np.log(density[counts > 0] / counts.sum()))
+    assert bound - 0.05 < sharp <= bound
