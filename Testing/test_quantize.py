@@ -29,13 +29,15 @@ def test_bins_follow_the_edges_in_volume_units():
     np.testing.assert_array_equal(q.value_to_bin(values), q.bins)
 
 
-def test_integer_lookup_path_equals_float_path():
+@pytest.mark.parametrize("shape", [(9, 10, 11), (40, 50, 61)])  # the second spans several float chunks
+def test_integer_lookup_path_equals_float_path(shape):
     rng = np.random.default_rng(1)
-    values = rng.integers(-1024, 3072, (9, 10, 11)).astype(np.int16)
+    values = rng.integers(-1024, 3072, shape).astype(np.int16)
     for n_bins in (7, 256, 1000, 4096):
         integer = quantize(values, n_bins).bins
         floating = quantize(values.astype(np.float64), n_bins).bins
         np.testing.assert_array_equal(integer, floating)
+        np.testing.assert_array_equal(quantize(values.astype(np.float32), n_bins).bins, integer)
         assert integer.dtype == (np.uint8 if n_bins <= 256 else np.uint16)
 
 

@@ -186,7 +186,7 @@ COST_PER_VOXEL_S = 12e-9
 COST_PER_LEVEL_BIN2_S = 40e-9
 #: One affinity propagation iteration over the n_bins x n_bins similarity (3.3-7.6 ns measured, as scikit-learn's).
 COST_PER_ITERATION_BIN2_S = 7e-9
-#: Tissues (the intensity model fitted to the histogram, 1 to 8 tissues) and showing the design.
+#: Tissues (the intensity model fitted to the histogram, up to 8 tissues) and showing the design.
 COST_FIXED_S = 0.25
 COST_TISSUES_PER_BIN2_S = 0.2e-6
 #: Expected seconds under which a design runs in Slicer's process.

@@ -19,7 +19,9 @@ is what the histogram says it is:
    the largest whose last tissue gains at least half as much log-likelihood as the best tissue added. BIC's penalty
    (``log(N) / N`` per parameter) is useless at millions of voxels, which are neither independent (blur, partial
    volume) nor exactly Gaussian: it keeps adding tissues forever; a fixed penalty per tissue falls off a cliff as
-   noise lowers every gain (2 tissues on a noisy brain); a share of the best gain does not.
+   noise lowers every gain (2 tissues on a noisy brain); a share of the best gain does not. The fits stop at the
+   first count after which no further tissue could pay even if it fitted the histogram perfectly (the histogram's
+   own entropy bounds every model's likelihood): the same choice as fitting all 8, in a fifth of the time on CT.
 3. **Classes to tissues.** Each voxel of a partial-volume bin belongs to the tissue it holds most of (a mixel at
    ``a < 1/2`` goes to the lower tissue), so the model gives every bin a tissue posterior; a class takes the
    tissue holding most of its voxels, under the constraint that **tissues are contiguous in intensity** (a run of
