@@ -44,7 +44,7 @@ import re
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -65,7 +65,7 @@ from tissue_visibility import (  # noqa: E402
     tissue_summary,
     tissue_weights,
 )
-from volume_panel import HEAD_CT, PANEL, ct_storage  # noqa: E402
+from volume_panel import HEAD_CT, PANEL, PanelVolume, ct_storage  # noqa: E402
 
 REPO = HERE.parent
 RESULTS = HERE / "results"
@@ -81,32 +81,6 @@ CT_PRESETS = ("CT-AAA", "CT-Bone")
 MR_PRESETS = ("MR-Default",)
 
 
-@dataclass
-class Case:
-    """A volume of the benchmark.
-
-    Attributes:
-        key: short name (file names). title: shown on the montage. kind: "CT" or "MRI".
-        load: returns ``(values [k, j, i], ijk_to_ras 4x4, labels or None, tissue names or None)``, and for the
-            panel (``volume_panel.PANEL``) a fifth item: the storage map ``(slope, offset)`` from HU, or None.
-        shown_for: the labels a user scanned for: their share of the picture is the panel's target.
-        fog: the label (air) that must take no share of the picture.
-        presets: the suited presets; ``best``: the one the targets compare with.
-        source: where the data comes from.
-    """
-
-    key: str
-    title: str
-    kind: str
-    load: Callable[[], tuple]
-    presets: tuple[str, ...]
-    best: str
-    source: str
-    available: Callable[[], bool] = field(default=lambda: True)
-    shown_for: tuple[str, ...] = ()
-    fog: str | None = None
-
-
 #: The phantom's noise (HU) and blur (mm): ``head_phantom``'s defaults, which ``isosimtf phantom`` uses.
 PHANTOM_NOISE_HU, PHANTOM_BLUR_MM = 20.0, 1.0
 
@@ -117,7 +91,7 @@ def _phantom() -> tuple:
 
     volume = load_input("phantom")
     labels = head_phantom(volume.values.shape[0], seed=0, noise_hu=PHANTOM_NOISE_HU, blur_mm=PHANTOM_BLUR_MM).labels
-    return volume.values, volume.ijk_to_ras(), labels, TISSUES
+    return volume.values, volume.ijk_to_ras(), labels, TISSUES, None
 
 
 def _file(path: str) -> Callable[[], tuple]:
@@ -125,7 +99,7 @@ def _file(path: str) -> Callable[[], tuple]:
         from isosimtf.volume_io import read_volume
 
         volume = read_volume(path)
-        return volume.values, volume.ijk_to_ras(), None, None
+        return volume.values, volume.ijk_to_ras(), None, None, None
 
     return load
 
@@ -133,49 +107,21 @@ def _file(path: str) -> Callable[[], tuple]:
 COLIN = "/usr/share/mricron/templates/ch2.nii.gz"
 COLIN_BET = "/usr/share/mricron/templates/ch2bet.nii.gz"
 
+#: The presets suited to each kind of volume, and the one the targets compare with.
 _PRESETS_OF = {"CT": (CT_PRESETS, "CT-Bone"), "micro-CT": (CT_PRESETS, "CT-Bone"), "MRI": (MR_PRESETS, "MR-Default")}
 
-CASES = (
-    Case("phantom", "Phantom (CT-like, HU, 128^3)", "CT", _phantom, CT_PRESETS, "CT-Bone", "isosimtf phantom, seed 0",
-         shown_for=("skull",), fog="air"),
-    Case(
-        "head-ct",
-        "Head CT (InVesalius Cranium, HU)",
-        "CT",
-        ct_storage("hu"),
-        CT_PRESETS,
-        "CT-Bone",
-        f"Debian invesalius-examples, {HEAD_CT}",
-        lambda: Path(HEAD_CT).is_file(),
-        ("dense",),
-    ),
-    Case(
-        "colin27",
-        "Colin27 T1 with scalp (uint8)",
-        "MRI",
-        _file(COLIN),
-        MR_PRESETS,
-        "MR-Default",
-        f"Debian mricron-data, {COLIN}",
-        lambda: Path(COLIN).is_file(),
-    ),
-    Case(
-        "colin27-bet",
-        "Colin27 T1 skull-stripped (uint8)",
-        "MRI",
-        _file(COLIN_BET),
-        MR_PRESETS,
-        "MR-Default",
-        f"Debian mricron-data, {COLIN_BET}",
-        lambda: Path(COLIN_BET).is_file(),
-    ),
-    # The panel (issue 16): storages, resolutions, other real volumes, synthetic CTA and micro-CT; none was used to
-    # set a constant.
-    *(
-        Case(p.key, p.title, p.kind, p.load, _PRESETS_OF[p.kind][0], _PRESETS_OF[p.kind][1], p.source, p.available,
-             p.shown_for, p.fog)
-        for p in PANEL
-    ),
+#: The volumes of the benchmark: the four it began with, then the panel (issue 16: storages, resolutions, other real
+#: volumes, synthetic CTA and micro-CT; none was used to set a constant).
+CASES: tuple[PanelVolume, ...] = (
+    PanelVolume("phantom", "Phantom (CT-like, HU, 128^3)", "CT", _phantom, ("skull",), "air", lambda: True,
+                "isosimtf phantom, seed 0"),
+    PanelVolume("head-ct", "Head CT (InVesalius Cranium, HU)", "CT", ct_storage("hu"), ("dense",), None,
+                lambda: Path(HEAD_CT).is_file(), f"Debian invesalius-examples, {HEAD_CT}"),
+    PanelVolume("colin27", "Colin27 T1 with scalp (uint8)", "MRI", _file(COLIN), (), None,
+                lambda: Path(COLIN).is_file(), f"Debian mricron-data, {COLIN}"),
+    PanelVolume("colin27-bet", "Colin27 T1 skull-stripped (uint8)", "MRI", _file(COLIN_BET), (), None,
+                lambda: Path(COLIN_BET).is_file(), f"Debian mricron-data, {COLIN_BET}"),
+    *PANEL,
 )  # fmt: skip
 
 
@@ -375,7 +321,7 @@ def verdict(brightness_ratio: float | None, noise_ratio: float | None) -> bool:
     return brightness_ratio >= MIN_BRIGHTNESS_RATIO and noise_ratio <= MAX_NOISE_RATIO
 
 
-def run_case(case: Case, presets: PresetsSource, size: int, gpu: bool, backdrop: str = "black") -> dict:
+def run_case(case: PanelVolume, presets: PresetsSource, size: int, gpu: bool, backdrop: str = "black") -> dict:
     """Render and measure one volume; write its montage; return its numbers.
 
     Args:
@@ -384,15 +330,14 @@ def run_case(case: Case, presets: PresetsSource, size: int, gpu: bool, backdrop:
     from isosimtf.rendering import HeadlessSlicer, write_png
 
     started = time.perf_counter()
-    loaded = case.load()
-    values, ijk_to_ras, labels, tissues = loaded[:4]
-    storage = loaded[4] if len(loaded) > 4 else None
+    values, ijk_to_ras, labels, tissues, storage = case.load()
+    suited, best = _PRESETS_OF[case.kind]
     spacing = tuple(float(s) for s in np.linalg.norm(np.asarray(ijk_to_ras)[:3, :3], axis=0))
     pictures: dict[tuple[str, str], np.ndarray] = {}
     background = (0.0, 0.0, 0.0) if backdrop == "black" else None
     with HeadlessSlicer(size=(size, size), presets_file=presets.path, background=background) as headless:
         volume_node = headless.add_volume(values, name=case.key, ijk_to_ras=ijk_to_ras)
-        looks = prepare_looks(headless, volume_node, values, spacing, case.presets, storage)
+        looks = prepare_looks(headless, volume_node, values, spacing, suited, storage)
         for view in VIEWS:
             for name, picture in render_view(headless, volume_node, looks, view, size).items():
                 pictures[(view, name)] = picture
@@ -437,7 +382,7 @@ def run_case(case: Case, presets: PresetsSource, size: int, gpu: bool, backdrop:
         "value_range": [float(values.min()), float(values.max())],
         "spacing": list(spacing),
         "first_click_preset": picked,
-        "best_preset": case.best,
+        "best_preset": best,
         "looks": [{"name": n, "title": t} for n, t in columns],
         "design": {
             "n_classes": len(design.classes),
