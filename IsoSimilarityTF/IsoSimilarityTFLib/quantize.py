@@ -174,9 +174,16 @@ def resolved_value_range(value_range, data_range: tuple[float, float]) -> tuple[
 
 
 def _bin_index(values: np.ndarray, value_range: tuple[float, float], n_bins: int) -> np.ndarray:
+    return _bins_in_place(np.array(values, dtype=np.float64), value_range, n_bins).astype(np.int64)
+
+
+def _bins_in_place(scaled: np.ndarray, value_range: tuple[float, float], n_bins: int) -> np.ndarray:
+    """The bin of each float64 value, as floats, computed in ``scaled`` itself (no temporary per step)."""
     low, high = value_range
-    scaled = (values - low) * (n_bins / (high - low))
-    return np.clip(np.floor(scaled), 0, n_bins - 1).astype(np.int64)
+    scaled -= low
+    scaled *= n_bins / (high - low)
+    np.floor(scaled, out=scaled)
+    return np.clip(scaled, 0, n_bins - 1, out=scaled)
 
 
 def quantize(values: np.ndarray, n_bins: int = 256, value_range: Optional[tuple[float, float]] = None) -> Quantization:
@@ -240,14 +247,8 @@ def bin_volume(
             chunk = flat_in[start : start + _LOOKUP_CHUNK].astype(np.int64) - offset
             np.take(table, chunk, out=flat_out[start : start + _LOOKUP_CHUNK])
     else:
-        # _bin_index's arithmetic in place, cast straight to the bins' type: 6-8x faster than through int64.
-        low, high = value_range
-        scale = n_bins / (high - low)
+        # Cast straight to the bins' type: 6-8x faster than through _bin_index's int64.
         for start in range(0, flat_in.size, _FLOAT_CHUNK):
             chunk = flat_in[start : start + _FLOAT_CHUNK].astype(np.float64)
-            chunk -= low
-            chunk *= scale
-            np.floor(chunk, out=chunk)
-            np.clip(chunk, 0, n_bins - 1, out=chunk)
-            flat_out[start : start + _FLOAT_CHUNK] = chunk
+            flat_out[start : start + _FLOAT_CHUNK] = _bins_in_place(chunk, value_range, n_bins)
     return bins
