@@ -179,11 +179,8 @@ def _em_step(
     ``weights`` ``(C,)`` per component. Few numpy calls on small arrays: the fits run about a thousand steps.
     """
     k = means.size
-    density = np.subtract.outer(x, mixing @ means)
-    density *= density
-    density *= -0.5 / variance
-    np.exp(density, out=density)
-    density *= weights * (1.0 / np.sqrt(2 * np.pi * variance))
+    density = _gauss(x[:, None], mixing @ means, variance)
+    density *= weights
     total = density.sum(axis=1)
     np.maximum(total, 1e-300, out=total)
     likelihood = float(w @ np.log(total))
