@@ -15,7 +15,7 @@ from .chunked import SlabTap, chunk_row_bytes, is_dask_array, quantize_chunked
 from .classes import IsovalueClass, build_classes, runs
 from .clustering import FALLBACK_DAMPINGS, cluster_isovalues, unconverged_advice
 from .errors import ClusteringError
-from .look import class_mean_values, default_look, detect_kind, gradient_ramp_top, ramped_opacity
+from .look import bin_opacity_of, class_mean_values, default_look, detect_kind, gradient_ramp_top
 from .memory import check_memory
 from .options import DEFAULT_OPTIONS, check_options
 from .quantize import Quantization, quantize
@@ -291,13 +291,13 @@ class TransferFunctionDesign:
     def bin_looks(self) -> tuple[np.ndarray, np.ndarray]:
         """``(n_bins, 3)`` colour and ``(n_bins,)`` opacity per bin, 0 opacity where the class is not shown.
 
-        Opacity climbs across each step over the intensity model's noise width (:func:`.look.ramped_opacity`). A bin
+        Opacity climbs across each step over the intensity model's noise width (:func:`.look.bin_opacity_of`). A bin
         that is not shown takes the colour of the nearest shown bin: the ray caster interpolates colour across
         each step, and a hidden neighbour's colour would otherwise tint the rim of what is shown.
         """
         opacities = np.array([c.opacity if self.is_shown(c.id) else 0.0 for c in self.classes], dtype=np.float64)
         bin_colors = self.class_colors[self.labels]
-        bin_opacity = ramped_opacity(opacities[self.labels], self.hierarchy.noise_sd)
+        bin_opacity = bin_opacity_of(opacities, self.labels, self.hierarchy.noise_sd)
         shown = np.flatnonzero(bin_opacity > 0)
         if shown.size:
             nearest = shown[np.argmin(np.abs(np.arange(self.n_bins)[:, None] - shown[None, :]), axis=1)]

@@ -172,6 +172,13 @@ def ramped_opacity(bin_opacity: np.ndarray, width_bins: float) -> np.ndarray:
     return out
 
 
+def bin_opacity_of(class_opacity: np.ndarray, labels: np.ndarray, noise_sd: float) -> np.ndarray:
+    """``(n_bins,)`` the transfer function's opacity per mm: each bin its class's ``class_opacity`` ``(n_classes,)``
+    (0 for a class not shown), every step softened over the noise width in bins (:func:`ramped_opacity`). The
+    design writes it and the visibility step renders it."""
+    return ramped_opacity(np.asarray(class_opacity, dtype=np.float64)[np.asarray(labels)], noise_sd)
+
+
 @dataclass(frozen=True)
 class Look:
     """The default look of every class and what its picture shows.
@@ -343,8 +350,8 @@ def _follow_real(opacity: np.ndarray, shown: list[int], real: list[int]) -> np.n
 class _VisibilityStep:
     """Renders of one design's preview with per-tissue opacities (step 3 of the module notes).
 
-    Every render is of the transfer function the design writes: class opacities, then every step softened over the
-    noise width (:meth:`bin_opacity`, the same as :meth:`.TransferFunctionDesign.bin_looks`).
+    Every render is of the transfer function the design writes (:func:`bin_opacity_of`, which
+    :meth:`.TransferFunctionDesign.bin_looks` calls too).
 
     Args:
         preview: the low-resolution volume.
@@ -394,9 +401,9 @@ class _VisibilityStep:
         )
 
     def bin_opacity(self, opacity: np.ndarray) -> np.ndarray:
-        """``(n_bins,)`` opacity per mm of each bin, as the transfer function has it: its class's
-        (:meth:`class_opacity`), every step softened over the noise width (:func:`ramped_opacity`)."""
-        return ramped_opacity(self.class_opacity(opacity)[self.labels], self.noise_sd)
+        """``(n_bins,)`` opacity per mm of each bin, as the transfer function has it (:func:`bin_opacity_of` of
+        :meth:`class_opacity`)."""
+        return bin_opacity_of(self.class_opacity(opacity), self.labels, self.noise_sd)
 
     def light(self, opacity: np.ndarray) -> np.ndarray:
         """``(n_tissues,)`` light each tissue sends to the eye over the six views, with these opacities per mm."""
