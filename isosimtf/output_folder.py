@@ -29,18 +29,26 @@ PathLike = Union[str, "os.PathLike[str]"]
 SCENE_FOLDER = "scene"
 #: The file a run records its outputs in; read back to find a previous run's files.
 CLASSES_JSON = "classes.json"
+#: Longest output folder path accepted: Slicer's writers crash (a segmentation fault, not an error) on paths near
+#: the system's 4096-character limit, and the scene's files add their own names below the folder.
+MAX_OUTDIR_CHARACTERS = 1024
 
 
 def check_output_path(outdir: PathLike) -> Path:
     """The output folder as an absolute path, refused before any work when it cannot be one; nothing is created.
 
     Raises:
-        UsageError: the path is empty, is a file, or lies under a file.
+        UsageError: the path is empty, too long, is a file, or lies under a file.
     """
     text = os.fspath(outdir)
     if not text.strip():
         raise UsageError("the output folder is empty: name a folder (e.g. -o out; -o . for the current folder)")
     path = Path(text).expanduser().resolve()
+    if len(str(path)) > MAX_OUTDIR_CHARACTERS:
+        raise UsageError(
+            f"the output folder path has {len(str(path))} characters; at most {MAX_OUTDIR_CHARACTERS} are accepted "
+            "(Slicer's writers fail on long paths): choose a shorter -o"
+        )
     for folder in (path, *path.parents):
         if folder.exists() and not folder.is_dir():
             where = "is" if folder == path else f"lies under '{folder}', which is"
@@ -48,9 +56,6 @@ def check_output_path(outdir: PathLike) -> Path:
     return path
 
 
-#: Longest output folder path accepted: Slicer's writers crash (a segmentation fault, not an error) on paths near
-#: the system's 4096-character limit, and the scene's files add their own names below the folder.
-MAX_OUTDIR_CHARACTERS = 1024
 #: Prefix of the temporary files and staging folders of a run; any left in the folder are a killed run's, removed
 #: by the next run (which holds the lock, so no other run is writing them).
 TEMPORARY_PREFIX = ".isosimtf-"
@@ -117,14 +122,8 @@ def check_outputs(path: Path, names: Iterable[str], previous: PreviousRun, *, sc
             named only once saved: every changed file there counts).
 
     Raises:
-        UsageError: the path is too long, an output or ``scene/`` is a symbolic link, or a changed file would be
-            replaced.
+        UsageError: an output or ``scene/`` is a symbolic link, or a changed file would be replaced.
     """
-    if len(str(path)) > MAX_OUTDIR_CHARACTERS:
-        raise UsageError(
-            f"the output folder path has {len(str(path))} characters; at most {MAX_OUTDIR_CHARACTERS} are accepted "
-            "(Slicer's writers fail on long paths): choose a shorter -o"
-        )
     targets = [*names, SCENE_FOLDER] if scene else list(names)
     for name in targets:
         if (path / name).is_symlink():
