@@ -14,7 +14,7 @@ from IsoSimilarityTFLib.design import STAGES as DESIGN_STAGES
 from IsoSimilarityTFLib.design import design_transfer_function
 from IsoSimilarityTFLib.errors import RenderError, UsageError
 from IsoSimilarityTFLib.options import DEFAULT_OPTIONS
-from IsoSimilarityTFLib.value_range import robust_value_range
+from IsoSimilarityTFLib.value_range import with_robust_range
 
 from .chunked_readers import preview_step, read_preview
 from .console import ProgressPrinter
@@ -207,12 +207,10 @@ def _run_locked(
         info = input_info(source, volume)
         for message in _input_warnings(info, n_bins, volume.values):
             warning(message)
-        if options.get("value_range") is None:
-            # Padding and outliers left out of the default range, as the Slicer module leaves them out.
-            robust = robust_value_range(volume.values)
-            if robust.excludes:
-                options = {**options, "value_range": robust.value_range}
-                warning(robust.warning("--range LOW HIGH"))
+        # Padding and outliers left out of the default range, as the Slicer module leaves them out.
+        options, range_warning = with_robust_range(volume.values, options, "--range LOW HIGH")
+        if range_warning is not None:
+            warning(range_warning)
         step = preview_step(volume.shape) if render and info["read_lazily"] else None
         if step is not None and step > 1:
             warning(_preview_warning(volume.shape, volume.spacing, step))
@@ -311,6 +309,10 @@ def label_count(values: np.ndarray) -> Optional[int]:
     if not np.issubdtype(values.dtype, np.integer) or is_dask_array(values):
         return None
     planes = values[:: max(1, min(8, values.shape[0] // 32))]  # at least 32 planes: small labels stay in
+    # A part never holds more values than the whole: a scan's thousands of values show on every 4th row and column
+    # (the 256^3 phantom: 13 ms instead of 65 ms).
+    if np.unique(planes[:, ::4, ::4]).size > LABEL_MAP_MAX_LABELS:
+        return None
     labels, counts = np.unique(planes, return_counts=True)
     if labels.size < 2 or labels.size > LABEL_MAP_MAX_LABELS:
         return None

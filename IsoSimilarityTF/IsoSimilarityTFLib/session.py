@@ -13,7 +13,7 @@ from . import mrml
 from .cells import octree_levels
 from .design import TransferFunctionDesign, design_transfer_function
 from .options import check_options
-from .value_range import robust_value_range
+from .value_range import with_robust_range
 from .worker import DesignProcess
 
 # Similarity matrices kept for volumes designed in this session (4096 bins: 128 MB each).
@@ -271,14 +271,10 @@ class DesignSession:
         """The options with the command line's default value range (:func:`.value_range.robust_value_range`: CT
         padding and outlier voxels left out of the bins) unless a range is given; what it left out is kept in
         :attr:`range_warning`."""
-        self.range_warning = None
-        if options.get("value_range") is not None:
-            return options
-        robust = robust_value_range(values)
-        if not robust.excludes:
-            return options
-        self.range_warning = robust.warning("value_range=(low, high) in IsoSimilarityTFLib.design_transfer_function")
-        return {**options, "value_range": robust.value_range}
+        options, self.range_warning = with_robust_range(
+            values, options, "value_range=(low, high) in IsoSimilarityTFLib.design_transfer_function"
+        )
+        return options
 
     def runs_in_process(self, volume_node, options: Optional[dict] = None) -> bool:
         """Whether :meth:`run` (in this process) should design the volume, rather than :meth:`start` (a child

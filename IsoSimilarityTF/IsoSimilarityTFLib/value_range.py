@@ -177,3 +177,18 @@ def robust_value_range(values: Any, *, sample_voxels: int = SAMPLE_VOXELS) -> Ro
     outliers_low = _count(values, lambda v: v < value_range[0]) - sum(c for p, c in counted if p == low)
     outliers_high = _count(values, lambda v: v > value_range[1]) - sum(c for p, c in counted if p == high)
     return RobustRange(value_range, data_range, counted, outliers_low, outliers_high)
+
+
+def with_robust_range(values: Any, options: dict, override: str) -> tuple[dict, Optional[str]]:
+    """``options`` with the robust default range (:func:`robust_value_range`) unless they give a ``value_range``,
+    and the one line saying what it leaves out (None when it leaves nothing out or a range is given).
+
+    Args:
+        override: how the caller's user sets the range (see :meth:`RobustRange.warning`).
+    """
+    if options.get("value_range") is not None:
+        return options, None
+    robust = robust_value_range(values)
+    if not robust.excludes:
+        return options, None
+    return {**options, "value_range": robust.value_range}, robust.warning(override)
