@@ -8,7 +8,7 @@ import numpy as np
 
 from .affinity_propagation import IterationCallback, affinity_propagation
 from .errors import ClusteringError
-from .options import PREFERENCES
+from .options import OPTIONS, PREFERENCES
 
 # Frey & Dueck's remedy for oscillating messages: more damping, tried in turn when the requested damping fails.
 # Messages then move (1 - damping) of the way per iteration, so the iteration limits grow by the same factor;
@@ -67,8 +67,6 @@ def unconverged_advice(max_iter: int, dampings: Sequence[float]) -> str:
     iterations help a slow convergence, not an oscillation. Python names (``preference``, ``damping``,
     ``max_iter``); the command line shows its own flags.
     """
-    from .options import OPTIONS
-
     tips = ["set preference='minimum' (fewer classes; it converges where the default oscillates)"]
     if max(dampings) < 0.95:
         tips.append("raise damping to 0.95")
@@ -175,8 +173,6 @@ def cluster_isovalues(
             and in [0, 1], isovalues out of range). ClusteringError: no isovalue to cluster, or AP ended with no
             exemplar.
     """
-    from .options import OPTIONS  # the table imports this module for its choices
-
     damping = OPTIONS["damping"].check(damping)
     # Iteration limits: any positive integer (the design scales the table's limits up with the fallback dampings).
     for name, value in (("max_iter", max_iter), ("convergence_iter", convergence_iter)):
