@@ -258,23 +258,25 @@ class DesignSession:
         """Design in this process and show the design; raising from ``progress`` cancels (nothing changes then).
 
         ``options["tissues"]`` may be a Detail setting (see :func:`grouping_of_detail`)."""
-        values, spacing = volume_values(volume_node)
-        options, _ = fit_levels(values.shape, options or {})
-        options, detail = _engine_grouping(self._robust_range(values, options))
+        values, spacing, options, detail = self._prepared(volume_node, options)
         design = design_transfer_function(values, spacing, progress=progress, **options)
         if detail is not None:
             regroup_design(design, detail)
         self.apply(volume_node, design)
         return design
 
-    def _robust_range(self, values, options: dict) -> dict:
-        """The options with the command line's default value range (:func:`.value_range.robust_value_range`: CT
-        padding and outlier voxels left out of the bins) unless a range is given; what it left out is kept in
-        :attr:`range_warning`."""
+    def _prepared(self, volume_node, options: Optional[dict]) -> tuple:
+        """What :meth:`run` and :meth:`start` design: the volume's values and spacing, the engine's options (octree
+        levels that fit, the command line's default value range: :func:`.value_range.with_robust_range`, CT padding
+        and outlier voxels left out of the bins unless a range is given, what it left out kept in
+        :attr:`range_warning`) and the Detail count to regroup to afterwards (or None)."""
+        values, spacing = volume_values(volume_node)
+        options, _ = fit_levels(values.shape, options or {})
         options, self.range_warning = with_robust_range(
             values, options, "value_range=(low, high) in IsoSimilarityTFLib.design_transfer_function"
         )
-        return options
+        options, detail = _engine_grouping(options)
+        return values, spacing, options, detail
 
     def runs_in_process(self, volume_node, options: Optional[dict] = None) -> bool:
         """Whether :meth:`run` (in this process) should design the volume, rather than :meth:`start` (a child
@@ -286,9 +288,7 @@ class DesignSession:
 
     def start(self, volume_node, options: Optional[dict] = None) -> DesignProcess:
         """Start designing in a child process (see :mod:`.worker`); give the job to :meth:`finish` when it ends."""
-        values, spacing = volume_values(volume_node)
-        options, _ = fit_levels(values.shape, options or {})
-        options, detail = _engine_grouping(self._robust_range(values, options))
+        values, spacing, options, detail = self._prepared(volume_node, options)
         job = DesignProcess(
             values, spacing, options, python=self.python_executable(), temporary_folder=self.temporary_folder()
         )
