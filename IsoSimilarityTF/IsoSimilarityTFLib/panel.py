@@ -244,8 +244,7 @@ class PanelModel:
     def on_scene_end_import(self) -> None:
         """A scene was added or loaded: its nodes and files are all read now, so look at the volume again."""
         if self.parameters is not None and not self.running:
-            self.show_volume(self.parameters.inputVolume)
-            self.view.show_detail_label()
+            self.show_volume(self.parameters.inputVolume)  # its show_result draws the Detail label
 
     def on_scene_start_close(self) -> None:
         self.session.forget()
