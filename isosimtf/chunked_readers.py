@@ -26,7 +26,7 @@ Optional dependencies (the ``outofcore`` extra): ``dask[array]``, plus ``zarr`` 
 
 import re
 from pathlib import Path
-from typing import Any, Callable, Optional
+from typing import TYPE_CHECKING, Any, Callable, Optional
 
 import numpy as np
 
@@ -35,6 +35,9 @@ from IsoSimilarityTFLib.memory import available_memory_bytes, design_memory_byte
 from .headers import StoredVoxels, stored_voxels
 from .read_errors import cannot_read
 from .volume import Volume, right_handed
+
+if TYPE_CHECKING:  # pragma: no cover - typing only
+    from .slicer_readers import ImageHeader
 
 #: Bytes of one chunk of a raw volume (whole planes): a row of chunks is one chunk, read in one go.
 RAW_CHUNK_BYTES = 64 << 20
@@ -102,7 +105,10 @@ def read_chunked(path: Path, stored: Optional[StoredVoxels] = None) -> Volume:
 
 
 def raw_values(
-    path: Path, stored: StoredVoxels, read: Callable[[Path, tuple[int, int, int], np.dtype, int], Any]
+    path: Path,
+    stored: StoredVoxels,
+    read: Callable[[Path, tuple[int, int, int], np.dtype, int], Any],
+    header: Optional["ImageHeader"] = None,
 ) -> tuple[Any, np.ndarray]:
     """The voxels of a raw file read by ``read`` (lazily or not), placed as Slicer's storage node places them.
 
@@ -114,6 +120,7 @@ def raw_values(
     Args:
         read: ``read(data file, (K, J, I), dtype, offset)`` -> the values, ``(K, J, I)``: :func:`raw_volume` for a
             dask array, ``numpy.fromfile``-like for memory.
+        header: Slicer's header of ``path`` when the caller has read it already; None: read here.
 
     Returns:
         ``(values (K, J, I) right-handed, IJK-to-RAS 4x4)``.
@@ -122,9 +129,10 @@ def raw_values(
         VolumeReadError: Slicer's reader cannot read the header or sees another size or type, or the file is
             truncated.
     """
-    from . import slicer_readers
+    if header is None:
+        from . import slicer_readers
 
-    header = slicer_readers.read_header(path, (path,))
+        header = slicer_readers.read_header(path, (path,))
     if header.components != 1 or header.dimensions != stored.shape[::-1]:
         raise cannot_read(
             path,

@@ -235,7 +235,7 @@ def _read_with_slicer(
                 "compressed: save them uncompressed (raw), or as int32 or float64",
             )
         _check_size(path, header.dimensions, 1, stored.dtype, n_bins, stored.stored_bytes)
-        values, ijk_to_ras = chunked_readers.raw_values(path, stored, chunked_readers.raw_array)
+        values, ijk_to_ras = chunked_readers.raw_values(path, stored, chunked_readers.raw_array, header)
         return Volume.from_ijk_to_ras(values, ijk_to_ras, name)
     values, ijk_to_ras = slicer_readers.read_image(path, header)
     return Volume.from_ijk_to_ras(values, ijk_to_ras, name)
