@@ -32,7 +32,7 @@ import numpy as np
 
 from IsoSimilarityTFLib.memory import available_memory_bytes, design_memory_bytes
 
-from .headers import StoredVoxels, stored_voxels
+from .headers import RAW_HEADER_SUFFIXES, StoredVoxels, stored_voxels
 from .read_errors import cannot_read
 from .volume import Volume, right_handed
 
@@ -50,7 +50,6 @@ RAW_CHUNK_BYTES = 64 << 20
 PREVIEW_VOXELS = 1 << 25
 
 _TIFF_SUFFIXES = (".tif", ".tiff")
-_RAW_SUFFIXES = (".nrrd", ".nhdr", ".mha", ".mhd")
 _ZARR_MARKERS = ("zarr.json", ".zarray", ".zgroup")
 
 
@@ -72,7 +71,7 @@ def reads_chunked(path: Path, n_bins: Optional[int], stored: Optional[StoredVoxe
     """
     if is_chunked_format(path):
         return True
-    if not path.is_file() or not path.name.lower().endswith(_RAW_SUFFIXES):
+    if not path.is_file() or not path.name.lower().endswith(RAW_HEADER_SUFFIXES):
         return False
     stored = stored if stored is not None else stored_voxels(path)
     available = available_memory_bytes()

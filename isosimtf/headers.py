@@ -25,6 +25,10 @@ from .read_errors import cannot_read
 
 #: Bytes of a header read at most: a header longer than this is not one we parse (Slicer's reader decides alone).
 MAX_HEADER_BYTES = 1 << 16
+#: The suffixes of the formats this module parses: NRRD (attached or detached header) and MetaImage.
+NRRD_SUFFIXES = (".nrrd", ".nhdr")
+METAIMAGE_SUFFIXES = (".mha", ".mhd")
+RAW_HEADER_SUFFIXES = NRRD_SUFFIXES + METAIMAGE_SUFFIXES
 
 # NRRD types and MetaImage element types, as numpy kinds (byte order added from the header).
 _NRRD_TYPES = {
@@ -88,21 +92,20 @@ def stored_voxels(path: Path) -> Optional[StoredVoxels]:
         VolumeReadError: the detached data file is missing; a compressed MetaImage without ``CompressedDataSize``
             in its own file (ITK's reader then reads the wrong bytes); the voxels lie before the header's end.
     """
+    lower = path.name.lower()
+    if not lower.endswith(RAW_HEADER_SUFFIXES):
+        return None
     try:
         with open(path, "rb") as handle:
             head = handle.read(MAX_HEADER_BYTES)
     except OSError:
         return None
     try:
-        if path.name.lower().endswith((".nrrd", ".nhdr")):
-            return _nrrd(path, head)
-        if path.name.lower().endswith((".mha", ".mhd")):
-            return _metaimage(path, head)
+        return _nrrd(path, head) if lower.endswith(NRRD_SUFFIXES) else _metaimage(path, head)
     except VolumeReadError:
         raise
     except (ValueError, TypeError, IndexError):  # a malformed header: Slicer's reader says what is wrong with it
         return None
-    return None
 
 
 def _lines(head: bytes) -> list[tuple[str, int]]:
@@ -186,11 +189,11 @@ def spacing_problem(path: Path) -> Optional[str]:
     except OSError:
         return None
     lower = path.name.lower()
-    if lower.endswith((".nrrd", ".nhdr")):
+    if lower.endswith(NRRD_SUFFIXES):
         fields, _ = _nrrd_fields(head)
         named = [("spacings", fields.get("spacings", ""))]
         named += [("space directions", d) for d in fields.get("space directions", "").split(")") if d.strip()]
-    elif lower.endswith((".mha", ".mhd")):
+    elif lower.endswith(METAIMAGE_SUFFIXES):
         fields, _ = _metaimage_fields(head)
         named = [(key, fields.get(key, "")) for key in ("ElementSpacing", "ElementSize")]
     else:

@@ -60,7 +60,6 @@ SUPPORTED_TEXT = (
     "a DICOM file or a DICOM series folder"
 )
 
-_NRRD_OR_METAIMAGE = (".nrrd", ".nhdr", ".mha", ".mhd")
 
 #: Largest expansion of a deflate (gzip, zlib) stream: a file of N bytes holds at most about 1032 N bytes of voxels.
 _MAX_DEFLATE_RATIO = 1032
@@ -140,7 +139,7 @@ def _read_nrrd_metaimage_nifti(path: Path, name: str, n_bins: Optional[int]) -> 
     """NRRD, MetaImage, NIfTI: Slicer's reader, or the lazy raw reader for a raw file too large for memory."""
     # The storage fields of a NRRD / MetaImage header, parsed once for the lazy-or-not choice, the size bound and
     # the exact read of 64-bit integers.
-    stored = headers.stored_voxels(path) if path.name.lower().endswith(_NRRD_OR_METAIMAGE) else None
+    stored = headers.stored_voxels(path)  # None for NIfTI
     if chunked_readers.reads_chunked(path, n_bins, stored):
         return chunked_readers.read_chunked(path, stored)
     return _read_with_slicer(path, (path,), name, n_bins, stored)
@@ -219,7 +218,7 @@ def _read_with_slicer(
     nifti = path.name.lower().endswith((".nii", ".nii.gz"))
     if stored is not None:
         on_disk = stored.stored_bytes
-    elif path.name.lower().endswith(_NRRD_OR_METAIMAGE):
+    elif path.name.lower().endswith(headers.RAW_HEADER_SUFFIXES):
         on_disk = None  # a list or pattern of data files: only the memory bound applies
     else:
         on_disk = sum(f.stat().st_size for f in files)
