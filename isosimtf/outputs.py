@@ -128,11 +128,14 @@ class RunResult:
         document["outputs"] = {role: path.relative_to(self.outdir).as_posix() for role, path in self.files.items()}
         # Every file this run wrote, with its size and time: the next run into this folder replaces or removes those
         # still as written, and never touches one changed since (nor those a previous run found changed: kept).
+        # classes.json holds the stamps, so it cannot hold its own.
         names = {p.relative_to(self.outdir).as_posix(): p for p in self.written()}
-        stamps = {name: file_stamp(p) for name, p in names.items() if name != OUTPUT_FILES["classes_json"]}
         document["written"] = sorted({*names, *self.kept})
-        document["written_stamps"] = {name: stamps.get(name, self.kept.get(name)) for name in document["written"]}
-        document["written_stamps"].pop(OUTPUT_FILES["classes_json"], None)
+        document["written_stamps"] = {
+            name: file_stamp(names[name]) if name in names else self.kept[name]
+            for name in document["written"]
+            if name != OUTPUT_FILES["classes_json"]
+        }
         return document
 
     def written(self) -> list[Path]:
