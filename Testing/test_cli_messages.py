@@ -90,3 +90,9 @@ def test_extremely_anisotropic_voxels_get_a_warning(tmp_path: Path, capfd) -> No
     (line,) = [line for line in capfd.readouterr().err.splitlines() if "times longer" in line]
     assert "0.05 x 0.05 x 40 mm" in line and "800 times" in line and "resample" in line
     assert not [m for m in run._input_warnings({"spacing": [1.0, 1.0, 3.0]}, 256) if "times longer" in m]
+
+
+def test_advice_with_two_options_and_numbers_is_in_the_command_spelling() -> None:
+    """Before: 'raise max_iter or damping (e.g. max_iter=1000, damping=0.9)' came out half converted."""
+    text = cli._cli_spelling("no exemplar; raise max_iter or damping (e.g. max_iter=1000, damping=0.9)")
+    assert text == "no exemplar; raise --max-iter or --damping (e.g. --max-iter 1000, --damping 0.9)"

@@ -282,7 +282,10 @@ def _cli_spelling(text: str) -> str:
     spelling (``--preference minimum``, ``--max-iter``)."""
     for option in OPTIONS.values():
         text = re.sub(rf"(?<![-\w]){option.name}='([^']*)'", rf"{option.flag} \1", text)
+        text = re.sub(rf"(?<![-\w]){option.name}=(-?[\d.]+(?:e-?\d+)?)", rf"{option.flag} \1", text)
         text = re.sub(rf"\b(raise|lower|set) {option.name}\b", rf"\1 {option.flag}", text)
+    for option in OPTIONS.values():  # "raise --max-iter or damping": the second name of the pair too
+        text = re.sub(rf"(\b(?:raise|lower|set) --[\w-]+ or ){option.name}\b", rf"\1{option.flag}", text)
     return text
 
 
