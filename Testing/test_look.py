@@ -35,7 +35,7 @@ def make_classes(voxels, contact=None, background=0):
 # The ray caster ------------------------------------------------------------------------------------------------------
 
 
-def slow_visibility(bins, spacing, opacity):
+def slow_visibility(bins, spacing, opacity, unit_distance):
     """Front-to-back compositing written out: every ray of the six axis directions, sample by sample."""
     light = np.zeros(opacity.size)
     spacing_zyx = spacing[::-1]
@@ -46,7 +46,7 @@ def slow_visibility(bins, spacing, opacity):
             for ray in np.ndindex(*ordered.shape[1:]):
                 transmittance = 1.0
                 for sample in ordered[(slice(None), *ray)]:
-                    alpha = 1.0 - (1.0 - opacity[sample]) ** spacing_zyx[axis]
+                    alpha = 1.0 - (1.0 - opacity[sample]) ** (spacing_zyx[axis] / unit_distance)
                     light[sample] += transmittance * alpha
                     transmittance *= 1.0 - alpha
     return light
@@ -61,8 +61,10 @@ def test_visibility_histogram_matches_the_slow_ray_caster(seed):
     spacing = tuple(float(s) for s in rng.uniform(0.3, 3.0, 3))
     opacity = rng.uniform(0, 1, n_bins)
     opacity[rng.integers(0, n_bins)] = 1.0  # an opaque bin: what lies behind it gets no light
-    fast = visibility_histogram(Preview(bins, spacing, n_bins), opacity)
-    np.testing.assert_allclose(fast, slow_visibility(bins, spacing, opacity), rtol=1e-5, atol=1e-6)
+    preview = Preview(bins, spacing, n_bins)
+    fast = visibility_histogram(preview, opacity)
+    slow = slow_visibility(bins, spacing, opacity, preview.unit_distance)
+    np.testing.assert_allclose(fast, slow, rtol=1e-5, atol=1e-6)
 
 
 def test_preview_is_about_cubic_and_small():
@@ -157,11 +159,18 @@ def test_a_fog_class_next_to_the_background_stays_clear():
 
 
 def test_on_uncalibrated_data_the_outer_tissue_is_a_surface_and_the_top_of_the_ramp_is_reached():
-    preview = Preview(shell_volume(), (1.0, 1.0, 1.0), 40)
+    # The shell in a field of view three times wider: a voxel is 1.7 unit distances (not 5), so at the start the
+    # shell lets light through and must be made a surface.
+    bins = np.zeros((120, 120, 120), dtype=np.intp)
+    bins[40:80, 40:80, 40:80] = shell_volume()
+    preview = Preview(bins, (1.0, 1.0, 1.0), 40)
     look = shell_look(preview, kind="mr")
     assert look.opacities[30] == OPACITY_HIGH  # the monotone ramp reaches its top
     assert look.opacities[10] > OPACITY_LOW  # the enclosing tissue made a surface where it lies
     assert look.tissue_shares[1] > 0.9
+    # In the tight field of view the same shell already is a surface at the start: nothing to raise.
+    tight = shell_look(Preview(shell_volume(), (1.0, 1.0, 1.0), 40), kind="mr")
+    assert tight.opacities[10] == OPACITY_LOW and tight.tissue_shares[1] > 0.9
 
 
 def test_tissue_colours_follow_intensity_and_are_shared_by_their_classes():
@@ -278,13 +287,28 @@ def test_regrouping_runs_the_step_again_and_survives_json(storages):
     assert [t.to_dict() for t in design.tissues] == [t.to_dict() for t in storages["hu"].tissues]
 
 
-def test_opacity_is_per_millimetre_whatever_the_spacing():
-    values = np.zeros((16, 16, 16), dtype=np.int16) - 1000
-    values[4:12, 4:12, 4:12] = 1000
-    fine = design_transfer_function(values, (0.5, 0.5, 0.5))
-    coarse = design_transfer_function(values, (2.0, 2.0, 2.0))
-    assert fine.unit_distance == coarse.unit_distance == 1.0
-    assert fine.volume_property().GetScalarOpacityUnitDistance() == 1.0
+def test_the_picture_does_not_change_with_the_voxel_size():
+    """A micro-CT at 0.05 mm is as many voxels deep as a head at 1 mm: the same voxels at another voxel size give
+    the same look, because the unit distance follows the volume's extent."""
+    phantom = head_phantom(64, seed=1)
+    values, spacing = phantom.values, np.asarray(phantom.spacing)
+    designs = {scale: design_transfer_function(values, tuple(spacing * scale)) for scale in (1.0, 0.05, 3.0)}
+    base = designs[1.0]
+    for scale, design in designs.items():
+        assert design.unit_distance == pytest.approx(base.unit_distance * scale, rel=1e-9)
+        assert design.volume_property().GetScalarOpacityUnitDistance() == pytest.approx(design.unit_distance)
+        for ours, theirs in zip(design.tissues, base.tissues):
+            assert ours.picture_share == pytest.approx(theirs.picture_share, abs=0.05)
+            assert ours.opacity == pytest.approx(theirs.opacity, abs=1e-9)
+
+
+def test_the_unit_distance_is_the_extent_over_the_presets_scale():
+    from IsoSimilarityTFLib.visibility import PRESET_EXTENT_MM
+
+    head = Preview(np.zeros((40, 50, 50), dtype=np.uint16), (4.0, 4.0, 5.0), 2)  # 200 mm on every side
+    assert head.unit_distance == pytest.approx(200.0 / PRESET_EXTENT_MM)
+    slab = Preview(np.zeros((10, 40, 40), dtype=np.uint16), (1.0, 1.0, 1.0), 2)  # 40 x 40 x 10 mm
+    assert slab.unit_distance == pytest.approx((40.0 * 40.0 * 10.0) ** (1 / 3) / PRESET_EXTENT_MM)
 
 
 def test_modality_option_is_a_hint():

@@ -21,6 +21,7 @@ from IsoSimilarityTFLib.errors import (
     OutputError,
     RenderError,
 )
+from IsoSimilarityTFLib.gallery import LOOK_NAMES
 from IsoSimilarityTFLib.options import OPTIONS, Option
 
 from . import __version__
@@ -131,8 +132,9 @@ def build_parser() -> argparse.ArgumentParser:
             "similarity + affinity propagation) and write it, with pictures and a Slicer scene, to OUTDIR."
         ),
         epilog=(
-            "Outputs: similarity.npy, similarity.png, classes.json, transfer_function.vp.json, transfer_function.vp, "
-            "and unless --no-render: render.png, classes.png, scene/scene.mrml. Exit status: 0 success, 2 usage or "
+            "Outputs: similarity.npy, similarity.png, classes.json, transfer_function.vp.json, transfer_function.vp "
+            "(the chosen look), looks/NAME.vp.json (every look offered), looks.png, and unless --no-render: "
+            "render.png, classes.png, scene/scene.mrml. Exit status: 0 success, 2 usage or "
             "input error, 1 processing error (including a volume too large for memory), 130 interrupted."
         ),
     )
@@ -150,6 +152,12 @@ def build_parser() -> argparse.ArgumentParser:
         _add_option(method, option)
 
     output = parser.add_argument_group("output")
+    output.add_argument(
+        "--look",
+        choices=LOOK_NAMES,
+        help="the look of the gallery that transfer_function.vp.json shows, if the data offer it (default: the first "
+        "click: dense-parts on CT-like data, else outer-surface)",
+    )
     output.add_argument(
         "--no-render",
         action="store_true",
@@ -238,6 +246,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             warn=_print_warning,
             backdrop=args.backdrop,
             ray_casting=args.ray_casting,
+            look=args.look,
         )
     except BaseException as error:  # one line, no traceback (ISOSIMTF_DEBUG=1 shows it)
         progress.finish()

@@ -1,10 +1,12 @@
 """The output folder: data files, classes.json, and the pictures and scene rendered by headless Slicer.
 
-The folder holds ``similarity.npy``, ``similarity.png``, ``classes.json``, ``transfer_function.vp.json``,
-``transfer_function.vp`` and, when rendering, ``render.png`` (the volume rendered with the automatic transfer function
-by Slicer's own volume rendering, headless), ``classes.png`` (one small render per shown tissue, labelled) and
-``scene/scene.mrml`` (a Slicer scene with the volume and the transfer function, to open in Slicer) and
-``classes.seg.nrrd`` (one segment per shown class, Slicer's segmentation file).
+The folder holds ``similarity.npy``, ``similarity.png``, ``classes.json``, ``transfer_function.vp.json`` and
+``transfer_function.vp`` (the chosen look), ``looks/<name>.vp.json`` (every look of the gallery), ``looks.png``
+(their thumbnails, from the Lib's numpy ray caster, with their names) and, when rendering, ``render.png`` (the
+volume rendered with the automatic transfer function by Slicer's own volume rendering, headless), ``classes.png``
+(one small render per shown tissue, labelled), ``scene/scene.mrml`` (a Slicer scene with the volume and the
+transfer function, to open in Slicer) and ``classes.seg.nrrd`` (one segment per shown class, Slicer's
+segmentation file).
 
 A volume read lazily (larger than memory) is pictured from a :class:`Preview`, every s-th voxel of it, with the
 design of the whole volume; the scene and the segmentation, which would hold only the preview, are then not written.
@@ -37,12 +39,17 @@ OUTPUT_FILES = {
     "classes_json": "classes.json",
     "vp_json": "transfer_function.vp.json",
     "vp": "transfer_function.vp",
+    "looks_png": "looks.png",
     "render_png": "render.png",
     "classes_png": "classes.png",
     "scene": "scene/scene.mrml",
     "segmentation": "classes.seg.nrrd",
 }
 
+#: The folder of the gallery's transfer functions, one ``<name>.vp.json`` per look.
+LOOKS_FOLDER = "looks"
+#: Side of a thumbnail in looks.png, in pixels.
+THUMBNAIL_SIZE = 160
 DEFAULT_VIEW = "anterior"
 DEFAULT_SIZE = 512
 DEFAULT_BACKDROP = "black"
@@ -122,6 +129,8 @@ class RunResult:
         from . import __version__
 
         document = self.design.to_dict()
+        roles = self.design.look_context().roles
+        document["looks"] = [look.summary(roles) for look in self.design.looks]
         document["timings_s"] = dict(self.timings_s)
         document["input"] = {**self.info, "preview": None if self.preview is None else self.preview.document()}
         document["tool"] = {"name": "isosimtf", "version": __version__}
@@ -160,7 +169,41 @@ def write_data_files(result: RunResult) -> None:
         path = outdir / OUTPUT_FILES[role]
         write_atomically(path, write)
         result.files[role] = path  # recorded once complete
+    write_looks(result)
     write_classes_json(result)
+
+
+def look_file(name: str) -> str:
+    """The output file (relative name) of the look ``name``."""
+    return f"{LOOKS_FOLDER}/{name}.vp.json"
+
+
+def write_looks(result: RunResult) -> None:
+    """Write ``looks/<name>.vp.json`` for every look of the gallery and ``looks.png``, their thumbnails."""
+    from .rendering import write_png
+
+    design, outdir = result.design, result.outdir
+    (outdir / LOOKS_FOLDER).mkdir(exist_ok=True)  # a link there was refused before any work (check_outputs)
+    for look in design.looks:
+        path = outdir / look_file(look.name)
+        write_atomically(path, lambda temporary, look=look: design.write_vp_json(temporary, look))
+        result.files[f"look_{look.name}"] = path
+    path = outdir / OUTPUT_FILES["looks_png"]
+    write_atomically(path, lambda temporary: write_png(looks_picture(design), temporary))
+    result.files["looks_png"] = path
+
+
+def looks_picture(design: TransferFunctionDesign, size: int = THUMBNAIL_SIZE) -> np.ndarray:
+    """The gallery's thumbnails side by side, each with its title and what it promises (the first is the first
+    click, the chosen one marked)."""
+    chosen = design.look_name or design.looks[0].name
+    tiles, labels, swatches = [], [], []
+    for look in design.looks:
+        tiles.append(design.thumbnail(look, size=size))
+        labels.append((f"{look.title}{' (shown)' if look.name == chosen else ''}", look.name))
+        shown = [c for c, v in zip(look.colors, look.visible) if v]
+        swatches.append(shown[-1] if shown else [0.5, 0.5, 0.5])
+    return class_grid(tiles, labels, swatches, columns=len(tiles))
 
 
 def write_classes_json(result: RunResult) -> Path:

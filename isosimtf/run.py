@@ -13,6 +13,7 @@ from IsoSimilarityTFLib.chunked import is_dask_array
 from IsoSimilarityTFLib.design import STAGES as DESIGN_STAGES
 from IsoSimilarityTFLib.design import design_transfer_function
 from IsoSimilarityTFLib.errors import RenderError, UsageError
+from IsoSimilarityTFLib.gallery import LOOK_NAMES
 from IsoSimilarityTFLib.options import DEFAULT_OPTIONS
 from IsoSimilarityTFLib.value_range import with_robust_range
 
@@ -25,11 +26,13 @@ from .outputs import (
     DEFAULT_RAY_CASTING,
     DEFAULT_SIZE,
     DEFAULT_VIEW,
+    LOOKS_FOLDER,
     MAX_SIZE,
     MIN_SIZE,
     OUTPUT_FILES,
     Preview,
     RunResult,
+    look_file,
     write_classes_json,
     write_data_files,
 )
@@ -40,7 +43,7 @@ from .rendering import BACKDROPS, RAY_CASTING, VIEW_DIRECTIONS, slicer_core_avai
 STAGES = ("read", *DESIGN_STAGES, "write", "render")
 
 #: The outputs of a run without rendering, and of one with (the scene's files besides).
-DATA_ROLES = ("similarity_npy", "similarity_png", "classes_json", "vp_json", "vp")
+DATA_ROLES = ("similarity_npy", "similarity_png", "classes_json", "vp_json", "vp", "looks_png")
 RENDER_ROLES = (*DATA_ROLES, "render_png", "classes_png", "segmentation")
 
 #: Bins above which affinity propagation (cost: bins^2 per iteration, up to 3 rounds) takes minutes, silently.
@@ -86,6 +89,7 @@ def run(
     warn: Optional[Callable[[str], None]] = None,
     backdrop: str = DEFAULT_BACKDROP,
     ray_casting: str = DEFAULT_RAY_CASTING,
+    look: Optional[str] = None,
 ) -> RunResult:
     """Read ``source``, design its transfer function and fill ``outdir``.
 
@@ -109,6 +113,8 @@ def run(
         warn: called with each warning line.
         backdrop: 3D view backdrop of the pictures, "black" or "slicer" (see ``BACKDROPS``).
         ray_casting: "cpu" (default, reproducible) or "gpu" (see ``RAY_CASTING``).
+        look: the look of the gallery the transfer function shows (one of ``LOOK_NAMES``; None: the first click's).
+            A look the data do not support is refused once the design is made, before anything is written.
 
     Raises:
         UsageError, VolumeReadError, ValueError: bad output path, input or option (a usage or input error), another
@@ -124,6 +130,8 @@ def run(
         raise UsageError(f"backdrop must be one of {', '.join(BACKDROPS)}; got {backdrop!r}")
     if ray_casting not in RAY_CASTING:
         raise UsageError(f"ray casting must be one of {', '.join(RAY_CASTING)}; got {ray_casting!r}")
+    if look is not None and look not in LOOK_NAMES:
+        raise UsageError(f"look must be one of {', '.join(LOOK_NAMES)}; got {look!r}")
     options = dict(options or {})
     max_iter = options.get("max_iter", DEFAULT_OPTIONS["max_iter"])
     convergence_iter = options.get("convergence_iter", DEFAULT_OPTIONS["convergence_iter"])
@@ -159,6 +167,7 @@ def run(
     with OutputFolder(path):
         previous = previous_outputs(path)
         names = [OUTPUT_FILES[role] for role in (RENDER_ROLES if render else DATA_ROLES)]
+        names += [LOOKS_FOLDER, *(look_file(name) for name in LOOK_NAMES)]
         check_outputs(path, names, previous, scene=render)
         return _run_locked(
             source,
@@ -175,6 +184,7 @@ def run(
             seed=seed,
             backdrop=backdrop,
             ray_casting=ray_casting,
+            look=look,
         )
 
 
@@ -194,6 +204,7 @@ def _run_locked(
     seed: int,
     backdrop: str,
     ray_casting: str,
+    look: Optional[str],
 ) -> RunResult:
     """:func:`run` once the output folder is checked and locked: read, design, write, render."""
     # The pictures are made by a second process, started now so that its slow start overlaps reading and designing.
@@ -216,6 +227,10 @@ def _run_locked(
             warning(_preview_warning(volume.shape, volume.spacing, step))
 
         design = design_transfer_function(volume.values, volume.spacing, progress=progress.design_callback, **options)
+        offered = [offered.name for offered in design.looks]
+        if look is not None and look not in offered:
+            raise UsageError(f"--look {look} is not offered for this volume; its looks: {', '.join(offered)}")
+        design.use_look(look or offered[0])
         timings.update(design.timings_s)
         result = RunResult(design, volume, info, path, timings_s=timings, warnings=warnings)
         for message in _design_warnings(result):

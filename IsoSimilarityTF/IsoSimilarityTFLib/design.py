@@ -15,11 +15,13 @@ from .chunked import SlabTap, chunk_row_bytes, is_dask_array, quantize_chunked
 from .classes import IsovalueClass, build_classes, runs
 from .clustering import FALLBACK_DAMPINGS, cluster_isovalues, unconverged_advice
 from .errors import ClusteringError
-from .look import bin_opacity_of, class_mean_values, default_look, detect_kind, gradient_ramp_top
+from .gallery import LOOK_NAMES, GalleryLook, LookContext, check_look, first_look_name, gallery, make_look
+from .look import bin_opacity_of, class_mean_values, detect_kind, gradient_ramp_top
 from .memory import check_memory
 from .options import DEFAULT_OPTIONS, check_options
 from .quantize import Quantization, quantize
 from .similarity import isovalue_similarity
+from .thumbnails import render_thumbnail
 from .tissues import TissueHierarchy, tissue_hierarchy
 from .transfer_function import (
     TransferFunctionPoints,
@@ -37,8 +39,6 @@ StageProgress = Callable[[str, float, str], None]
 _PROGRESS_ENTRIES = 2_000_000
 #: The engine's stages, in order: the keys of ``timings_s`` and the ``stage`` given to ``progress``.
 STAGES = ("quantize", "similarity", "clustering", "classes", "tissues")
-# Scalar opacity unit distance in mm: opacity is per millimetre, as in Slicer's presets, whatever the spacing.
-UNIT_DISTANCE_MM = 1.0
 
 
 @dataclass
@@ -120,6 +120,11 @@ class TransferFunctionDesign:
         solo_tissue_id: id of the tissue shown alone, or None.
         similarity: ``(n_bins, n_bins)`` similarity matrix (not serialized), or None after loading.
         preview: the low-resolution volume the look's visibility step renders (see :mod:`.visibility`), or None.
+        unit_distance: scalar opacity unit distance in mm: the preview's (:attr:`.visibility.Preview.unit_distance`,
+            from the volume's extent), so the picture does not change with the voxel size; 1 (per mm, as Slicer's
+            presets) for a design saved before it followed the volume.
+        look_name: the look of the gallery chosen with :meth:`use_look` (None: the first click's); a regrouping
+            keeps it.
     """
 
     value_range: tuple[float, float]
@@ -138,6 +143,9 @@ class TransferFunctionDesign:
     solo_tissue_id: Optional[int] = None
     similarity: Optional[np.ndarray] = field(default=None, repr=False)
     preview: Optional[Preview] = field(default=None, repr=False)
+    unit_distance: float = 1.0
+    look_name: Optional[str] = None
+    _gallery: Optional[list[GalleryLook]] = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def edges(self) -> np.ndarray:
@@ -254,28 +262,68 @@ class TransferFunctionDesign:
             item.visible = not item.background
 
     def reset_look(self) -> None:
-        """Back to the default colours, opacities and visibility of the current grouping (see :mod:`.look`): the
-        visibility step runs again on the design's preview."""
-        look = default_look(
-            self.classes,
-            self.tissue_of_class,
-            class_mean_values(self.labels, self.bin_voxels, self.edges, len(self.classes)),
-            self.kind,
-            labels=self.labels,
+        """Back to the chosen look (:attr:`look_name`, by default the first click's) of the current grouping: its
+        colours, opacities and visibility, made again from the classes (see :mod:`.gallery`)."""
+        self._gallery = None
+        context = self.look_context()
+        name = self.look_name or first_look_name(self.kind)
+        look = make_look(name, context) or make_look(first_look_name(self.kind), context)
+        self._apply(look)
+
+    # Looks ---------------------------------------------------------------------------------------------------------
+    def look_context(self) -> LookContext:
+        """What every look of the current grouping is made from (the classes' roles decided once)."""
+        return LookContext.build(
+            classes=self.classes,
+            tissue_of_class=self.tissue_of_class,
+            class_values=class_mean_values(self.labels, self.bin_voxels, self.edges, len(self.classes)),
             class_bins=self.class_bins,
+            labels=self.labels,
             noise_sd=self.hierarchy.noise_sd,
             preview=self.preview,
+            kind=self.kind,
             colors=self.options.get("colors", DEFAULT_OPTIONS["colors"]),
             max_classes=self.options.get("max_classes", DEFAULT_OPTIONS["max_classes"]),
         )
+
+    @property
+    def looks(self) -> list[GalleryLook]:
+        """The gallery: every look the data support, ranked, the first click first (see :mod:`.gallery`); made
+        once per grouping."""
+        if self._gallery is None:
+            self._gallery = gallery(self.look_context())
+        return self._gallery
+
+    def use_look(self, name: str) -> None:
+        """Show the look ``name`` of :attr:`looks` (its colours, opacities and visibility replace the current
+        ones, edits included); a regrouping keeps it. Leaves solo mode."""
+        looks = {look.name: look for look in self.looks}
+        if name not in looks:
+            raise ValueError(f"no look {name!r} for this volume; its looks are {', '.join(looks)}")
+        self.look_name = name
+        self.solo_class = self.solo_tissue_id = None
+        self._apply(looks[name])
+
+    def check_look(self, name: str) -> list[str]:
+        """What the look ``name`` fails of its promise (:func:`.gallery.check_look`); empty when it keeps it."""
+        looks = {look.name: look for look in self.looks}
+        if name not in looks:
+            raise ValueError(f"no look {name!r} for this volume; its looks are {', '.join(looks)}")
+        return check_look(self.look_context(), looks[name])
+
+    def _apply(self, look: GalleryLook) -> None:
         for c, color, opacity, shown in zip(self.classes, look.colors, look.opacities, look.visible):
-            c.color, c.opacity, c.visible = color, opacity, shown
+            c.color, c.opacity, c.visible = list(color), opacity, shown
+        shares = look.class_shares
+        tissue_shares = None
+        if shares is not None:
+            tissue_shares = np.bincount(self.tissue_of_class, weights=shares, minlength=len(self.tissues))
         for t in self.tissues:
             members = [self.classes[c] for c in t.classes]
             t.color = list(max(members, key=lambda c: c.voxels).color)  # its largest class's, where they differ
             t.opacity = max(c.opacity for c in members)
             t.visible = any(c.visible for c in members)
-            t.picture_share = None if look.tissue_shares is None else float(look.tissue_shares[t.id])
+            t.picture_share = None if tissue_shares is None else float(tissue_shares[t.id])
 
     @property
     def class_bins(self) -> np.ndarray:
@@ -288,30 +336,39 @@ class TransferFunctionDesign:
         """``(n_classes, 3)`` RGB in 0..1, in class id order."""
         return np.array([c.color for c in self.classes], dtype=np.float64)
 
-    def bin_looks(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(n_bins, 3)`` colour and ``(n_bins,)`` opacity per bin, 0 opacity where the class is not shown.
+    def bin_looks(self, look: Optional[GalleryLook] = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(n_bins, 3)`` colour and ``(n_bins,)`` opacity per bin, 0 opacity where the class is not shown: of
+        the classes as they are now, or of a ``look`` of :attr:`looks`.
 
         Opacity climbs across each step over the intensity model's noise width (:func:`.look.bin_opacity_of`). A bin
         that is not shown takes the colour of the nearest shown bin: the ray caster interpolates colour across
         each step, and a hidden neighbour's colour would otherwise tint the rim of what is shown.
         """
-        opacities = np.array([c.opacity if self.is_shown(c.id) else 0.0 for c in self.classes], dtype=np.float64)
-        bin_colors = self.class_colors[self.labels]
-        bin_opacity = bin_opacity_of(opacities, self.labels, self.hierarchy.noise_sd)
+        if look is None:
+            opacities = [c.opacity if self.is_shown(c.id) else 0.0 for c in self.classes]
+            class_colors = self.class_colors
+        else:
+            opacities = np.where(look.visible, look.opacities, 0.0)
+            class_colors = np.array(look.colors, dtype=np.float64)
+        bin_colors = class_colors[self.labels]
+        bin_opacity = bin_opacity_of(np.asarray(opacities, dtype=np.float64), self.labels, self.hierarchy.noise_sd)
         shown = np.flatnonzero(bin_opacity > 0)
         if shown.size:
             nearest = shown[np.argmin(np.abs(np.arange(self.n_bins)[:, None] - shown[None, :]), axis=1)]
             bin_colors = bin_colors[nearest]
         return bin_colors, bin_opacity
 
-    def transfer_function(self) -> TransferFunctionPoints:
-        """Piecewise-constant control points in volume units."""
-        return piecewise_constant(self.edges, *self.bin_looks())
+    def transfer_function(self, look: Optional[GalleryLook] = None) -> TransferFunctionPoints:
+        """Piecewise-constant control points in volume units (of the classes now, or of a ``look``)."""
+        return piecewise_constant(self.edges, *self.bin_looks(look))
 
-    @property
-    def unit_distance(self) -> float:
-        """Scalar opacity unit distance in mm: 1, so opacity is per millimetre whatever the voxel spacing."""
-        return UNIT_DISTANCE_MM
+    def thumbnail(self, look: Optional[GalleryLook] = None, view: str = "anterior", size: int = 96) -> np.ndarray:
+        """``(size, size, 3)`` uint8 picture of the classes now, or of a ``look``, rendered from the preview by the
+        Lib's shaded numpy ray caster (:func:`.thumbnails.render_thumbnail`); black without a preview."""
+        if self.preview is None:
+            return np.zeros((size, size, 3), dtype=np.uint8)
+        colors, opacity = self.bin_looks(look)
+        return render_thumbnail(self.preview, colors, opacity, unit_distance=self.unit_distance, view=view, size=size)
 
     @property
     def gradient_ramp_top(self) -> Optional[float]:
@@ -326,16 +383,16 @@ class TransferFunctionDesign:
         ]
         return gradient_ramp_top(means)
 
-    def volume_property(self):
-        """A new ``vtkVolumeProperty`` showing this design."""
-        return new_volume_property(self.transfer_function(), self.unit_distance, self.gradient_ramp_top)
+    def volume_property(self, look: Optional[GalleryLook] = None):
+        """A new ``vtkVolumeProperty`` showing this design (the classes now, or a ``look`` of :attr:`looks`)."""
+        return new_volume_property(self.transfer_function(look), self.unit_distance, self.gradient_ramp_top)
 
     def update_volume_property(self, volume_property) -> None:
         """Rewrite the colour and opacity functions of an existing ``vtkVolumeProperty`` in place."""
         fill_volume_property(volume_property, self.transfer_function())
 
-    def write_vp_json(self, path) -> None:
-        write_vp_json(self.volume_property(), path, effective_range=self.value_range)
+    def write_vp_json(self, path, look: Optional[GalleryLook] = None) -> None:
+        write_vp_json(self.volume_property(look), path, effective_range=self.value_range)
 
     def write_vp(self, path) -> None:
         write_vp(self.volume_property(), path)
@@ -351,6 +408,8 @@ class TransferFunctionDesign:
             "timings_s": dict(self.timings_s),
             "clustering": dict(self.clustering),
             "spacing": list(self.spacing) if self.spacing else None,
+            "unit_distance": self.unit_distance,
+            "look": self.look_name,
             "kind": self.kind,
             "solo_class": self.solo_class,
             "solo_tissue": self.solo_tissue_id,
@@ -376,6 +435,12 @@ class TransferFunctionDesign:
             if labels.size and not 0 <= labels.min() <= labels.max() < len(classes):
                 raise ValueError("a label names no class")
             spacing = data.get("spacing")
+            look_name = data.get("look")
+            if look_name is not None and look_name not in LOOK_NAMES:
+                raise ValueError(f"no look {look_name!r}; looks are {', '.join(LOOK_NAMES)}")
+            unit_distance = float(data.get("unit_distance", 1.0))
+            if not (np.isfinite(unit_distance) and unit_distance > 0):
+                raise ValueError(f"unit_distance must be a positive number of mm; got {unit_distance!r}")
             tissues = [Tissue.from_dict(t) for t in data["tissues"]]
             members = sorted(c for t in tissues for c in t.classes)
             if members != list(range(len(classes))) or [t.id for t in tissues] != list(range(len(tissues))):
@@ -396,6 +461,8 @@ class TransferFunctionDesign:
                 tissues=tissues,
                 timings_s={k: float(v) for k, v in data.get("timings_s", {}).items()},
                 spacing=tuple(float(s) for s in spacing) if spacing else None,
+                unit_distance=unit_distance,
+                look_name=look_name,
                 solo_class=data.get("solo_class"),
                 solo_tissue_id=data.get("solo_tissue"),
                 preview=None if data.get("preview") is None else _preview_from_dict(data["preview"], n_bins),
@@ -670,6 +737,7 @@ def design_transfer_function(
             spacing=spacing,
             similarity=similarity.matrix,
             preview=preview,
+            unit_distance=preview.unit_distance,
         )
         design.regroup(opts["tissues"])
     design.timings_s = timings

@@ -42,6 +42,7 @@ import numpy as np
 
 from .classes import PALETTE, IsovalueClass
 from .options import COLOR_SCHEMES, GRADIENT_OPACITY, KINDS  # noqa: F401 (GRADIENT_OPACITY: still importable here)
+from .roles import RULES
 from .visibility import Preview, enclosure, first_met, visibility_histogram
 
 # Tissue colour ramp, low to high intensity: dark red, tan, ivory, white (our own anchors, in 0..1).
@@ -55,9 +56,9 @@ RAMP = (
 IVORY_PLACE = 0.75
 #: Opacity per mm of the lowest and of the densest shown tissue before the visibility step: a tissue at the top is
 #: opaque within 2-3 mm (a surface), one at the bottom lets half the light through 3.5 cm (a haze you see through).
-OPACITY_LOW, OPACITY_HIGH = 0.02, 0.5
+OPACITY_LOW, OPACITY_HIGH = RULES.opacity_low, RULES.opacity_high
 #: A class or tissue with at least this share of the non-background voxels is a real tissue, not stray voxels.
-REAL_SHARE = 0.01
+REAL_SHARE = RULES.real_share
 #: Two tissues whose means lie this many noise widths apart overlap by under 2.5 % (two Gaussians: the 1-sided tail
 #: beyond 2 sd): they are different materials, not two shades of one.
 SEPARATION = 4.0
@@ -66,11 +67,11 @@ SEPARATION = 4.0
 TAIL_SHARE = 1 / 3
 #: Share of a feature's own light that must still reach the eye through the tissues it stands apart from: what the
 #: eye reads as "seen through a veil" rather than "behind it".
-SEEN = 0.8
+SEEN = RULES.seen
 #: Rounds of the visibility step; each sets the clearing factor from the transmittance measured, so 4 suffice.
 VISIBILITY_ROUNDS = 4
 # A class most of whose voxels touch the background is noise in it or the rim around objects.
-FRINGE_CONTACT = 0.5
+FRINGE_CONTACT = RULES.rim_contact
 BACKGROUND_GREY = [0.5, 0.5, 0.5]
 
 

@@ -11,8 +11,11 @@ look (:mod:`.look`) sets opacities from it, so it must be fast and depend only o
 * **Orthographic rays along the preview's axes**, both ways (the six views of Slicer's view buttons), one per voxel
   column, one sample per voxel. Front-to-back compositing is a cumulative product, so a whole direction is one
   vectorized pass: ``T = exp(cumsum(log(1 - alpha)))`` shifted by one sample.
-* **Opacity per millimetre**, as the design writes it (unit distance 1 mm): a sample of a step of ``d`` mm has
-  ``alpha = 1 - (1 - a) ** d``.
+* **Opacity per unit distance**, as the design writes it: a sample of a step of ``d`` mm has
+  ``alpha = 1 - (1 - a) ** (d / u)``. The unit distance ``u`` follows the volume's extent
+  (:attr:`Preview.unit_distance`), so the same voxels give the same picture at any voxel size: a specimen 10 mm across
+  at 0.05 mm is as many voxels deep as a head at 1 mm, and Slicer's presets, made per mm for heads and chests about
+  :data:`PRESET_EXTENT_MM` across, keep their meaning at that scale.
 
 Perspective, trilinear sampling and shading are left out: none of them changes which tissue a ray stops in.
 Arrays are indexed ``[k, j, i]`` (z, y, x), spacing is ``(x, y, z)`` in mm, as everywhere in the library.
@@ -25,6 +28,9 @@ from typing import Optional
 
 import numpy as np
 
+#: The scale Slicer's presets were made for: opacity per mm on a head or a chest, about 20 cm across. A volume of
+#: this extent gets a unit distance of 1 mm; any other, the same share of its extent.
+PRESET_EXTENT_MM = 200.0
 #: Voxels of the preview: 48^3 resolves a 5 mm skull on a 24 cm head (5 mm voxels) and renders in a few ms.
 PREVIEW_VOXELS = 48**3
 # Largest alpha a sample may have: keeps log(1 - alpha) finite (an opaque sample still passes 1e-9 of the light).
@@ -44,6 +50,13 @@ class Preview:
     bins: np.ndarray
     spacing: tuple[float, float, float]
     n_bins: int
+
+    @cached_property
+    def unit_distance(self) -> float:
+        """Scalar opacity unit distance in mm: the preview's extent (geometric mean of its three sides, in mm) over
+        :data:`PRESET_EXTENT_MM` mm. Scaling the spacing scales it alike, so the picture does not change."""
+        sides = np.asarray(self.bins.shape, dtype=np.float64) * np.asarray(self.spacing[::-1], dtype=np.float64)
+        return float(np.exp(np.mean(np.log(sides)))) / PRESET_EXTENT_MM
 
     @cached_property
     def flat_bins(self) -> np.ndarray:
@@ -104,24 +117,25 @@ def preview_bins(
     return Preview(bins=np.asarray(bins[::sz, ::sy, ::sx]), spacing=kept_spacing, n_bins=int(n_bins))
 
 
-def visibility_histogram(preview: Preview, opacity_per_mm: np.ndarray) -> np.ndarray:
+def visibility_histogram(preview: Preview, opacity: np.ndarray) -> np.ndarray:
     """``(n_bins,)`` light each bin sends to the eye, summed over the rays of the six axis directions.
 
     Args:
         preview: the volume (see :func:`preview_bins`).
-        opacity_per_mm: ``(n_bins,)`` scalar opacity of each bin, per mm (the transfer function's, unit distance
-            1 mm), in [0, 1].
+        opacity: ``(n_bins,)`` scalar opacity of each bin per :attr:`Preview.unit_distance` (the transfer
+            function's), in [0, 1].
 
     Returns:
         The visibility of each bin; summed over the bins, the opacity of all pixels of the six views.
     """
-    opacity = np.clip(np.asarray(opacity_per_mm, dtype=np.float64), 0.0, 1.0)
-    log_clear = np.log1p(-np.minimum(opacity, _MAX_ALPHA))  # log(1 - a) per mm, per bin
+    opacity = np.clip(np.asarray(opacity, dtype=np.float64), 0.0, 1.0)
+    log_clear = np.log1p(-np.minimum(opacity, _MAX_ALPHA))  # log(1 - a) per unit distance, per bin
     seen = np.zeros(preview.bins.shape, dtype=np.float32)
     for axis, step_mm in enumerate(preview.spacing[::-1]):
         # Per bin, then per sample: log(1 - alpha) over a step along this axis, and alpha (the rays run along it).
-        log_t = (log_clear * step_mm).astype(np.float32)[preview.bins]
-        alpha = (-np.expm1(log_clear * step_mm)).astype(np.float32)[preview.bins]
+        steps = step_mm / preview.unit_distance
+        log_t = (log_clear * steps).astype(np.float32)[preview.bins]
+        alpha = (-np.expm1(log_clear * steps)).astype(np.float32)[preview.bins]
         behind = np.cumsum(log_t, axis=axis)  # log transmittance from the ray's start through each sample
         total = np.take(behind, [-1], axis=axis)
         # Transmittance in front of each sample seen from the start of the axis and from its end, times its alpha.

@@ -1,0 +1,415 @@
+"""A gallery of looks: several transfer functions of the same classes, each with its own promise, one click each.
+
+Where the data cannot say what the user wants (a housing to see through or to clear, partial volume that is the
+structure or hides it), the design offers the looks the data support, ranked, as the Volume Rendering module offers
+preset icons; the first is the first click. Every look is colours, opacities and visibility of the same classes, so
+switching recomputes nothing. Each look decides from the class roles (:mod:`.roles`), never from units:
+
+=================== ======================================================== ======================================
+name                what it shows                                            offered when
+=================== ======================================================== ======================================
+``dense-parts``     the dense parts inside, the bulk around them cleared     a class is ``dense``
+                    (bone of a CT, the parts of an engine)
+``outer-surface``   the tissue met first as a surface (the skin of a head,   always
+                    a brain's cortex: MR-Default's look)
+``see-through``     the dense parts seen through the bulk, which keeps       a class is ``dense`` and another
+                    :attr:`.LookRules.see_through` of the picture            ``bulk``
+``thin-structures`` the rim shown as structure: small vessels, twigs         a real share of the voxels is ``rim``
+``all-tissues``     every tissue, on the presets' monotone ramp              two tissues or more
+``classes``         one palette colour per class (the thesis)                two classes or more
+=================== ======================================================== ======================================
+
+The first click is ``dense-parts`` on CT-like data (:func:`.look.detect_kind`), else ``outer-surface``; a look whose
+transfer function equals an earlier one is left out. Each look states its *promise*, the share of the picture some
+roles give (measured by the visibility histogram of :mod:`.visibility`); :func:`check_look` measures it again with
+an independent ray caster (:func:`.thumbnails.ray_visibility`).
+"""
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Callable, Optional
+
+import numpy as np
+
+from .classes import PALETTE, IsovalueClass
+from .look import BACKGROUND_GREY, bin_opacity_of, default_look
+from .roles import RULES, LookRules, class_roles
+from .visibility import Preview, visibility_histogram
+
+#: Every look the gallery can offer, in the order it offers them after the first click.
+LOOK_NAMES = ("dense-parts", "outer-surface", "see-through", "thin-structures", "all-tissues", "classes")
+# Rounds of the see-through look's search for the bulk's opacity (a secant in log opacity: 6 reach 1 % of share).
+_SEE_THROUGH_ROUNDS = 6
+
+
+@dataclass(frozen=True)
+class LookContext:
+    """What every look is made from: the classes, their grouping and roles, and the preview to measure with.
+
+    Attributes:
+        classes: the classes in id order. tissue_of_class: ``(n_classes,)`` tissue id per class.
+        class_values: ``(n_classes,)`` mean value per class, volume units. class_bins: the same in bins.
+        labels: ``(n_bins,)`` class per bin. noise_sd: the intensity model's noise width, in bins.
+        preview: the low-resolution volume (None: no look needing a measure is offered, no share is measured).
+        kind: ``"ct"``, ``"mr"`` or ``"8bit"``. colors: the ``colors`` option. max_classes: the option.
+        roles: one of :data:`.roles.ROLES` per class. rules: the thresholds.
+    """
+
+    classes: Sequence[IsovalueClass]
+    tissue_of_class: np.ndarray
+    class_values: np.ndarray
+    class_bins: np.ndarray
+    labels: np.ndarray
+    noise_sd: float
+    preview: Optional[Preview]
+    kind: str
+    colors: str = "ramp"
+    max_classes: int = 15
+    roles: list[str] = field(default_factory=list)
+    rules: LookRules = RULES
+
+    @classmethod
+    def build(cls, *, rules: LookRules = RULES, **inputs) -> "LookContext":
+        """The context with the roles decided (:func:`.roles.class_roles`)."""
+        roles = class_roles(
+            inputs["classes"], inputs["tissue_of_class"], inputs["class_bins"], inputs["noise_sd"], rules
+        )
+        return cls(**inputs, roles=roles, rules=rules)
+
+    def of_role(self, *roles: str) -> np.ndarray:
+        """``(n_classes,)`` whether each class has one of ``roles``."""
+        return np.isin(np.array(self.roles, dtype=object), roles)
+
+    @property
+    def n_tissues(self) -> int:
+        return int(self.tissue_of_class.max()) + 1 if self.tissue_of_class.size else 0
+
+
+@dataclass(frozen=True)
+class GalleryLook:
+    """One look of the gallery.
+
+    Attributes:
+        name: lowercase letters and hyphens (:data:`LOOK_NAMES`). title: for buttons. objective: what it promises.
+        colors: ``[r, g, b]`` per class in 0..1. opacities: opacity per unit distance per class. visible: per class.
+        promise: ``{roles: (low, high)}``: the share of the picture the classes of ``roles`` (a ``"|"``-joined
+            string of :data:`.roles.ROLES`) give lies in ``[low, high]``.
+        kept: ``{roles: minimum}``: the shown classes of ``roles`` keep at least this share of the light they give
+            rendered alone (seen through what is in front of them).
+        monotone: whether opacity rises with intensity among the shown classes.
+        class_shares: ``(n_classes,)`` share of the picture each class gives, or None without a preview.
+    """
+
+    name: str
+    title: str
+    objective: str
+    colors: list[list[float]]
+    opacities: list[float]
+    visible: list[bool]
+    promise: dict[str, tuple[float, float]]
+    kept: dict[str, float]
+    monotone: bool
+    class_shares: Optional[np.ndarray] = None
+
+    def role_shares(self, roles: Sequence[str]) -> dict[str, float]:
+        """Share of the picture each role gives (empty without a preview)."""
+        if self.class_shares is None:
+            return {}
+        role_array = np.array(roles, dtype=object)
+        return {role: float(self.class_shares[role_array == role].sum()) for role in sorted(set(roles))}
+
+    def summary(self, roles: Sequence[str]) -> dict:
+        """The look as ``classes.json`` lists it: name, title, objective, promise and measured shares."""
+        return {
+            "name": self.name,
+            "title": self.title,
+            "objective": self.objective,
+            "promise": {k: list(v) for k, v in self.promise.items()},
+            "kept": dict(self.kept),
+            "role_shares": self.role_shares(roles),
+        }
+
+    def same_picture(self, other: "GalleryLook") -> bool:
+        """Whether both looks give the same transfer function."""
+        return (
+            self.visible == other.visible
+            and np.allclose(np.where(self.visible, self.opacities, 0.0), np.where(other.visible, other.opacities, 0.0))
+            and np.allclose(
+                np.array(self.colors)[np.array(self.visible, dtype=bool)],
+                np.array(other.colors)[np.array(other.visible, dtype=bool)],
+            )
+        )
+
+
+def first_look_name(kind: str) -> str:
+    """The first click's look for a kind of volume."""
+    return "dense-parts" if kind == "ct" else "outer-surface"
+
+
+def gallery(context: LookContext) -> list[GalleryLook]:
+    """Every look the data support, the first click first, no two with the same transfer function."""
+    first = first_look_name(context.kind)
+    looks: list[GalleryLook] = []
+    for name in (first, *(n for n in LOOK_NAMES if n != first)):
+        look = make_look(name, context)
+        if look is not None and not any(look.same_picture(earlier) for earlier in looks):
+            looks.append(look)
+    return looks
+
+
+def make_look(name: str, context: LookContext) -> Optional[GalleryLook]:
+    """The look ``name`` (one of :data:`LOOK_NAMES`), or None where the data do not support it."""
+    if name not in _MAKERS:
+        raise ValueError(f"no look {name!r}; looks are {', '.join(LOOK_NAMES)}")
+    made = _MAKERS[name](context)
+    if made is None:
+        return None
+    colors, opacities, visible = made
+    visible = [bool(v) and role not in ("background", "fog") for v, role in zip(visible, context.roles)]
+    title, objective, promise, kept, monotone = _DESCRIPTIONS[name](context.rules)
+    return GalleryLook(
+        name=name,
+        title=title,
+        objective=objective,
+        colors=[[float(v) for v in c] for c in colors],
+        opacities=[float(a) for a in opacities],
+        visible=visible,
+        promise=promise,
+        kept=kept,
+        monotone=monotone,
+        class_shares=class_shares(context, opacities, visible),
+    )
+
+
+def class_shares(context: LookContext, opacities: Sequence[float], visible: Sequence[bool]) -> Optional[np.ndarray]:
+    """``(n_classes,)`` share of the preview's picture each class gives (the transfer function the design writes:
+    :func:`.look.bin_opacity_of`); None without a preview; zeros for an empty picture."""
+    if context.preview is None:
+        return None
+    light = visibility_histogram(context.preview, _bin_opacity(context, opacities, visible))
+    per_class = np.bincount(context.labels, weights=light, minlength=len(context.classes))
+    total = per_class.sum()
+    return per_class / total if total > 0 else per_class
+
+
+def _bin_opacity(context: LookContext, opacities: Sequence[float], visible: Sequence[bool]) -> np.ndarray:
+    shown = np.where(np.asarray(visible, dtype=bool), np.asarray(opacities, dtype=np.float64), 0.0)
+    return bin_opacity_of(shown, context.labels, context.noise_sd)
+
+
+# The looks -----------------------------------------------------------------------------------------------------------
+Made = Optional[tuple[list[list[float]], list[float], list[bool]]]
+
+
+def _default(context: LookContext, kind: str) -> Made:
+    look = default_look(
+        list(context.classes),
+        context.tissue_of_class,
+        context.class_values,
+        kind,
+        labels=context.labels,
+        class_bins=context.class_bins,
+        noise_sd=context.noise_sd,
+        preview=context.preview,
+        colors=context.colors,
+        max_classes=context.max_classes,
+    )
+    return look.colors, look.opacities, look.visible
+
+
+def _dense_parts(context: LookContext) -> Made:
+    if context.kind != "ct" and not context.of_role("dense").any():  # on CT it is the first click, always offered
+        return None
+    return _default(context, "ct")
+
+
+def _outer_surface(context: LookContext) -> Made:
+    # On CT-like data the surface look keeps the CT's per-class colours: one look of the same data.
+    return _default(context, "mr" if context.kind == "ct" else context.kind)
+
+
+def _see_through(context: LookContext) -> Made:
+    dense, bulk = context.of_role("dense"), context.of_role("bulk")
+    if context.preview is None or not dense.any() or not bulk.any():
+        return None
+    colors, opacities, visible = _default(context, "ct")
+    visible = np.array(visible) | bulk
+    low, high = context.rules.see_through
+    target = 0.5 * (low + high)
+
+    def bulk_share(log_opacity: float) -> float:
+        trial = np.where(bulk, np.exp(log_opacity), opacities)
+        shares = class_shares(context, trial, visible)
+        return float(shares[bulk].sum())
+
+    # The bulk's share rises with its opacity: a secant search in log opacity, from the ramp's two ends.
+    points = [(np.log(context.rules.opacity_low), None), (np.log(context.rules.opacity_high), None)]
+    points = [(x, bulk_share(x) - target) for x, _ in points]
+    for _ in range(_SEE_THROUGH_ROUNDS):
+        (x0, f0), (x1, f1) = points[-2:]
+        if abs(f1) < 0.01 or f1 == f0:
+            break
+        x2 = float(np.clip(x1 - f1 * (x1 - x0) / (f1 - f0), np.log(1e-5), 0.0))
+        points.append((x2, bulk_share(x2) - target))
+    best = min(points, key=lambda p: abs(p[1]))[0]
+    opacities = np.where(bulk, np.exp(best), opacities)
+    colors = _with_ramp_colors(context, colors, bulk)
+    return colors, list(opacities), list(visible)
+
+
+def _thin_structures(context: LookContext) -> Made:
+    rim = context.of_role("rim")
+    voxels = np.array([c.voxels for c in context.classes], dtype=np.float64)
+    foreground = ~context.of_role("background", "fog")
+    if not rim.any() or voxels[rim].sum() < context.rules.real_share * max(voxels[foreground].sum(), 1.0):
+        return None
+    colors, opacities, visible = _default(context, context.kind)
+    opacities = np.asarray(opacities, dtype=np.float64)
+    # The rim as structure: from thin_opacity at its lowest class up to the densest shown opacity, by intensity.
+    order = np.argsort(context.class_bins[rim])
+    top = max(float(opacities[np.array(visible, dtype=bool)].max(initial=0.0)), context.rules.thin_opacity)
+    ramp = np.linspace(context.rules.thin_opacity, top, max(int(rim.sum()), 1))
+    rim_ids = np.flatnonzero(rim)[order]
+    opacities[rim_ids] = np.maximum(opacities[rim_ids], ramp)
+    visible = np.array(visible) | rim
+    return _with_ramp_colors(context, colors, rim), list(opacities), list(visible)
+
+
+def _all_tissues(context: LookContext) -> Made:
+    if context.n_tissues - 1 < 2:
+        return None
+    return _monotone(context, by_class=False)
+
+
+def _classes(context: LookContext) -> Made:
+    if len(context.classes) - 1 < 2:
+        return None
+    return _monotone(context, by_class=True)
+
+
+def _monotone(context: LookContext, by_class: bool) -> Made:
+    """Every class shown but the background and fog, opacity on the presets' ramp by rank of intensity (of its
+    tissue, or of the class itself); colours along the intensity ramp, or one palette colour per class."""
+    shown = ~context.of_role("background", "fog")
+    group = np.arange(len(context.classes)) if by_class else np.asarray(context.tissue_of_class)
+    groups = sorted(set(group[shown].tolist()), key=lambda g: context.class_bins[group == g].mean())
+    rank = {g: i for i, g in enumerate(groups)}
+    low, high = context.rules.opacity_low, context.rules.opacity_high
+    opacities = [
+        low + (high - low) * rank[group[c]] / max(len(groups) - 1, 1) if shown[c] else 0.0
+        for c in range(len(context.classes))
+    ]
+    if by_class:
+        by_size = sorted(np.flatnonzero(shown), key=lambda c: (-context.classes[c].voxels, c))
+        colors = [list(BACKGROUND_GREY) for _ in context.classes]
+        for i, c in enumerate(by_size):
+            colors[c] = list(PALETTE[i % len(PALETTE)])
+    else:
+        colors = _with_ramp_colors(context, _default(context, "mr")[0], shown)
+    return colors, opacities, list(shown)
+
+
+def _with_ramp_colors(context: LookContext, colors: list[list[float]], shown: np.ndarray) -> list[list[float]]:
+    """Colours where the classes newly shown get the ramp colour of their tissue (:func:`.look.default_look` gives
+    every foreground tissue one, shown or not)."""
+    tissue_colors = default_look(
+        list(context.classes), context.tissue_of_class, context.class_values, "mr", noise_sd=context.noise_sd
+    ).colors
+    return [tissue_colors[c] if shown[c] and colors[c] == BACKGROUND_GREY else colors[c] for c in range(len(colors))]
+
+
+_MAKERS: dict[str, Callable[[LookContext], Made]] = {
+    "dense-parts": _dense_parts,
+    "outer-surface": _outer_surface,
+    "see-through": _see_through,
+    "thin-structures": _thin_structures,
+    "all-tissues": _all_tissues,
+    "classes": _classes,
+}
+
+# name: (title, objective, promised shares, kept light, monotone opacity).
+_DESCRIPTIONS: dict[str, Callable[[LookRules], tuple[str, str, dict, dict, bool]]] = {
+    "dense-parts": lambda r: (
+        "Dense parts",
+        "the dense parts inside, what encloses them cleared",
+        {},
+        {"dense": r.seen},
+        False,
+    ),
+    "outer-surface": lambda r: (
+        "Outer surface",
+        "the tissue met first, as a surface",
+        {"rim|bulk|dense": (r.surface_share, 1.0)},
+        {},
+        False,
+    ),
+    "see-through": lambda r: (
+        "See-through",
+        "the dense parts seen through the bulk around them",
+        {"bulk": r.see_through},
+        {},
+        False,
+    ),
+    "thin-structures": lambda r: (
+        "Thin structures",
+        "partial volume shown as structure: small vessels, branches",
+        {"rim": (0.05, 1.0)},
+        {},
+        False,
+    ),
+    "all-tissues": lambda r: ("All tissues", "every tissue, on the presets' monotone ramp", {}, {}, True),
+    "classes": lambda r: ("Classes", "one colour per class (the thesis)", {}, {}, True),
+}
+
+
+def check_look(context: LookContext, look: GalleryLook) -> list[str]:
+    """What ``look`` fails of its promise, measured with an independent ray caster; empty when it keeps it.
+
+    Checked: every promised share (:attr:`GalleryLook.promise`); opacity rising with intensity among the shown
+    classes where promised; fog and background never shown; the densest real tissue shown.
+    """
+    from .thumbnails import ray_visibility  # the independent ray caster: an oracle, not the fast path
+
+    failures = []
+    visible = np.asarray(look.visible, dtype=bool)
+    roles = np.array(context.roles, dtype=object)
+    if context.preview is not None:
+
+        def light_of(opacities: np.ndarray, shown: np.ndarray) -> np.ndarray:
+            bin_opacity = _bin_opacity(context, opacities, shown)
+            light = ray_visibility(context.preview, bin_opacity, unit_distance=context.preview.unit_distance)
+            return np.bincount(context.labels, weights=light, minlength=len(context.classes))
+
+        per_class = light_of(look.opacities, visible)
+        total = per_class.sum()
+        for key, (low, high) in look.promise.items():
+            share = float(per_class[np.isin(roles, key.split("|"))].sum() / total) if total > 0 else 0.0
+            if not low - 1e-9 <= share <= high + 1e-9:
+                failures.append(f"{look.name}: {key} gives {share:.2f} of the picture, promised {low:g}..{high:g}")
+        for key, minimum in look.kept.items():
+            members = np.isin(roles, key.split("|")) & visible
+            alone = light_of(look.opacities, members)[members].sum()
+            kept = float(per_class[members].sum() / alone) if alone > 0 else 1.0
+            if kept < minimum - 1e-9:
+                failures.append(f"{look.name}: {key} keeps {kept:.2f} of its own light, promised {minimum:g}")
+    if look.monotone:
+        shown = np.flatnonzero(visible)
+        by_intensity = shown[np.argsort(context.class_bins[shown], kind="stable")]
+        if np.any(np.diff(np.asarray(look.opacities)[by_intensity]) < -1e-12):
+            failures.append(f"{look.name}: opacity does not rise with intensity among the shown classes")
+    if np.any(visible & np.isin(roles, ("background", "fog"))):
+        failures.append(f"{look.name}: background or fog shown")
+    densest = _densest_real_tissue(context)
+    if densest is not None and not visible[np.asarray(context.tissue_of_class) == densest].any():
+        failures.append(f"{look.name}: the densest real tissue ({densest}) is not shown")
+    return failures
+
+
+def _densest_real_tissue(context: LookContext) -> Optional[int]:
+    voxels = np.array([0 if r in ("background", "fog") else c.voxels for c, r in zip(context.classes, context.roles)])
+    tissue_voxels = np.bincount(context.tissue_of_class, weights=voxels, minlength=context.n_tissues)
+    real = np.flatnonzero(tissue_voxels >= context.rules.real_share * max(tissue_voxels.sum(), 1))
+    if real.size == 0:
+        return None
+    means = [context.class_bins[context.tissue_of_class == t].mean() for t in real]
+    return int(real[int(np.argmax(means))])

@@ -1,0 +1,130 @@
+"""What each class is in the picture, decided once from its own measurements, and the rules that decide it.
+
+A class's *role* says what a look may do with it; the looks (:mod:`.gallery`) read the roles and never re-derive
+them. Every threshold is one field of :class:`LookRules`, which takes one decision, with its reason.
+
+Roles, in the order they are decided (the first that applies):
+
+- ``"background"``: the background class (the thesis' rule: the largest class; see :mod:`.classes`).
+- ``"fog"``: noise in the background: the class's mean bin lies within :attr:`LookRules.fog_separation` noise
+  widths of the background's (a micro-CT's noisy air, the haze of an MRI). No look shows it.
+- ``"dense"``: a class of a real tissue lying :attr:`LookRules.dense_separation` noise widths above the largest
+  tissue: bone or contrast in soft tissue, the parts inside a housing, the core of a vessel, a bright lesion.
+- ``"rim"``: most of its voxels touch the background (:attr:`LookRules.rim_contact`): the partial-volume skin of
+  an object, or a structure only a voxel or two thick (a small vessel, a twig), which is all skin. Whether the rim
+  *is* the structure or hides it, the data cannot say: one look shows it, another clears it.
+- ``"bulk"``: everything else: the tissue that fills or encloses the rest (soft tissue, a housing, a brain).
+"""
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from .classes import IsovalueClass
+
+ROLES = ("background", "fog", "dense", "rim", "bulk")
+
+
+@dataclass(frozen=True)
+class LookRules:
+    """Every threshold of the roles and looks, one decision each.
+
+    Attributes:
+        real_share: a tissue holding at least this share of the non-background voxels is a real structure, not a
+            few stray voxels (which never decide what is dense, nor become the most opaque thing in view).
+        fog_separation: a class whose mean lies within this many noise widths (of the intensity model, in bins)
+            of the background's mean is noise in the background: two Gaussians 4 sd apart overlap by under 2.5 %.
+        dense_separation: a real tissue this many noise widths above the largest tissue is a different, denser
+            material (bone over soft tissue), not a brighter shade of the same one (white over grey matter).
+        rim_contact: a class more than this share of whose voxels touch the background lies on its fringe.
+        seen: the share of its own light (rendered alone) that a structure a look shows through others must keep:
+            what the eye reads as "seen through a veil" rather than "behind it".
+        surface_share: the *outer surface* look promises that the tissue met first gives at least this share.
+        see_through: the *see-through* look keeps the enclosing bulk at this share of the picture, ``(low, high)``:
+            enough to place the parts inside, little enough to see them.
+        thin_opacity: opacity per unit distance of the lowest rim class in the *thin structures* look: a structure
+            one voxel thick (a voxel is about one unit distance, see :attr:`.visibility.Preview.unit_distance`)
+            must stop half the light to be seen at all.
+        opacity_low, opacity_high: opacity per unit distance of the lowest and densest shown tissue on the
+            presets' monotone ramp (a haze half the light passes through over 35 units; a surface within 2-3).
+    """
+
+    real_share: float = 0.01
+    fog_separation: float = 4.0
+    dense_separation: float = 4.0
+    rim_contact: float = 0.5
+    seen: float = 0.8
+    surface_share: float = 0.5
+    see_through: tuple[float, float] = (0.2, 0.4)
+    thin_opacity: float = 0.5
+    opacity_low: float = 0.02
+    opacity_high: float = 0.5
+
+
+RULES = LookRules()
+
+
+def class_roles(
+    classes: Sequence[IsovalueClass],
+    tissue_of_class: np.ndarray,
+    class_bins: np.ndarray,
+    noise_sd: float,
+    rules: LookRules = RULES,
+) -> list[str]:
+    """The role of every class (see the module notes).
+
+    Args:
+        classes: the classes, in id order (``background``, ``voxels``, ``background_contact`` are read).
+        tissue_of_class: ``(n_classes,)`` tissue id per class (the background's tissue holds it alone).
+        class_bins: ``(n_classes,)`` voxel-weighted mean bin of each class.
+        noise_sd: the intensity model's noise width, in bins.
+        rules: the thresholds.
+
+    Returns:
+        One of :data:`ROLES` per class.
+    """
+    tissue_of_class = np.asarray(tissue_of_class)
+    class_bins = np.asarray(class_bins, dtype=np.float64)
+    background = next((c.id for c in classes if c.background), None)
+    background_bin = class_bins[background] if background is not None else -np.inf
+    dense = set(dense_tissues(classes, tissue_of_class, class_bins, noise_sd, rules))
+    roles = []
+    for c in classes:
+        if c.background:
+            roles.append("background")
+        elif class_bins[c.id] - background_bin < rules.fog_separation * noise_sd:
+            roles.append("fog")
+        elif int(tissue_of_class[c.id]) in dense:
+            roles.append("dense")
+        elif c.background_contact > rules.rim_contact:
+            roles.append("rim")
+        else:
+            roles.append("bulk")
+    return roles
+
+
+def dense_tissues(
+    classes: Sequence[IsovalueClass],
+    tissue_of_class: np.ndarray,
+    class_bins: np.ndarray,
+    noise_sd: float,
+    rules: LookRules = RULES,
+) -> list[int]:
+    """Ids of the real tissues that lie ``rules.dense_separation`` noise widths above the largest tissue (the
+    background's left out), ascending."""
+    voxels = np.array([c.voxels for c in classes], dtype=np.float64)
+    weight = np.maximum(voxels, 1e-9)  # an empty class still places its tissue
+    foreground = np.array([not c.background for c in classes])
+    n_tissues = int(tissue_of_class.max()) + 1 if tissue_of_class.size else 0
+    tissue_voxels = np.bincount(tissue_of_class, weights=voxels * foreground, minlength=n_tissues)
+    in_tissue = np.bincount(tissue_of_class, weights=weight * foreground, minlength=n_tissues)
+    tissue_bin = np.bincount(tissue_of_class, weights=weight * class_bins * foreground, minlength=n_tissues)
+    tissue_bin = tissue_bin / np.maximum(in_tissue, 1e-300)
+    total = tissue_voxels.sum()
+    if total <= 0:
+        return []
+    largest = int(np.argmax(tissue_voxels))
+    real = tissue_voxels >= rules.real_share * total
+    above = tissue_bin >= tissue_bin[largest] + rules.dense_separation * noise_sd
+    return [int(t) for t in np.flatnonzero(real & above)]

@@ -1,0 +1,193 @@
+"""The class roles, the gallery of looks and its oracle (check_look)."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from IsoSimilarityTFLib import design_transfer_function
+from IsoSimilarityTFLib.classes import IsovalueClass
+from IsoSimilarityTFLib.design import TransferFunctionDesign
+from IsoSimilarityTFLib.gallery import LOOK_NAMES, LookContext, check_look, make_look
+from IsoSimilarityTFLib.roles import RULES, class_roles, dense_tissues
+from IsoSimilarityTFLib.visibility import Preview
+from isosimtf.phantom import head_phantom
+
+
+def make_classes(voxels, contact=None, background=0):
+    contact = contact or [0.0] * len(voxels)
+    return [
+        IsovalueClass(
+            id=i, rank=1, voxels=v, fraction=0.0, isovalue_bins=[i], value_ranges=[[i, i + 1]], exemplar_bin=i,
+            background=i == background, background_contact=contact[i],
+        )
+        for i, v in enumerate(voxels)
+    ]  # fmt: skip
+
+
+# Roles: each threshold on both sides of its boundary -----------------------------------------------------------------
+
+
+def roles_of(means, voxels, contact=None, noise_sd=1.0, tissue_of=None):
+    classes = make_classes(voxels, contact)
+    tissue_of = np.arange(len(voxels)) if tissue_of is None else np.asarray(tissue_of)
+    return class_roles(classes, tissue_of, np.asarray(means, dtype=float), noise_sd)
+
+
+@pytest.mark.parametrize("gap, role", [(RULES.fog_separation - 0.01, "fog"), (RULES.fog_separation + 0.01, "bulk")])
+def test_a_class_within_the_fog_separation_of_the_background_is_fog(gap, role):
+    # background at 0, a class `gap` noise widths above it, the main tissue far above
+    assert roles_of([0.0, gap, 40.0], [5000, 100, 3000])[1] == role
+
+
+@pytest.mark.parametrize("contact, role", [(RULES.rim_contact - 0.01, "bulk"), (RULES.rim_contact + 0.01, "rim")])
+def test_a_class_mostly_touching_the_background_is_rim(contact, role):
+    assert roles_of([0.0, 20.0, 40.0], [5000, 100, 3000], contact=[1.0, contact, 0.0])[1] == role
+
+
+@pytest.mark.parametrize("gap, dense", [(RULES.dense_separation - 0.01, False), (RULES.dense_separation + 0.01, True)])
+def test_a_real_tissue_above_the_largest_by_the_dense_separation_is_dense(gap, dense):
+    roles = roles_of([0.0, 20.0, 20.0 + gap], [5000, 3000, 300])
+    assert (roles[2] == "dense") is dense
+
+
+@pytest.mark.parametrize("share, dense", [(0.0099, False), (0.0101, True)])
+def test_a_dense_tissue_must_be_real(share, dense):
+    # non-background voxels: 10_000 in all; the top tissue holds `share` of them
+    top = int(round(share * 10_000))
+    classes = make_classes([50_000, 10_000 - top, top])
+    assert (2 in dense_tissues(classes, np.arange(3), np.array([0.0, 20.0, 60.0]), 1.0)) is dense
+
+
+def test_a_dense_class_stays_dense_when_it_touches_the_background():
+    # Bone exposed to the air is still bone: the dense decision comes before the rim's.
+    assert roles_of([0.0, 20.0, 60.0], [5000, 3000, 300], contact=[1.0, 0.0, 0.9])[2] == "dense"
+
+
+# The gallery on whole designs ----------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def phantom_design():
+    phantom = head_phantom(64, seed=2)
+    return design_transfer_function(phantom.values, phantom.spacing)
+
+
+def test_the_first_look_is_the_first_click_and_names_are_unique(phantom_design):
+    looks = phantom_design.looks
+    assert 3 <= len(looks) <= len(LOOK_NAMES)
+    assert looks[0].name == ("dense-parts" if phantom_design.kind == "ct" else "outer-surface")
+    assert len({look.name for look in looks}) == len(looks)
+    assert all(name.replace("-", "").isalnum() and name == name.lower() for name in (look.name for look in looks))
+    # The design as made shows its first look, class by class.
+    first = looks[0]
+    assert [c.visible for c in phantom_design.classes] == first.visible
+    assert [c.opacity for c in phantom_design.classes] == pytest.approx(first.opacities)
+
+
+def test_no_two_looks_give_the_same_transfer_function(phantom_design):
+    looks = phantom_design.looks
+    for i, a in enumerate(looks):
+        for b in looks[i + 1 :]:
+            assert not a.same_picture(b)
+
+
+def test_using_a_look_switches_the_transfer_function_and_a_regrouping_keeps_it(phantom_design):
+    design = TransferFunctionDesign.from_json(phantom_design.to_json())
+    names = [look.name for look in design.looks]
+    first_tf = design.transfer_function()
+    other = names[-1]
+    design.use_look(other)
+    assert design.look_name == other
+    assert not np.array_equal(design.transfer_function().opacity, first_tf.opacity)
+    look = {look.name: look for look in design.looks}[other]
+    assert np.array_equal(design.transfer_function().opacity, design.transfer_function(look).opacity)
+    # Saved and restored: the chosen look comes back, and a regrouping remakes that look.
+    restored = TransferFunctionDesign.from_json(design.to_json())
+    assert restored.look_name == other
+    restored.regroup(restored.hierarchy.auto)
+    assert restored.look_name == other
+    assert np.array_equal(restored.transfer_function().opacity, design.transfer_function().opacity)
+    with pytest.raises(ValueError, match="no look 'nothing'"):
+        design.use_look("nothing")
+
+
+def test_a_saved_design_naming_an_unknown_look_is_refused(phantom_design):
+    document = phantom_design.to_dict()
+    document["look"] = "rainbow"
+    with pytest.raises(ValueError, match="no look 'rainbow'"):
+        TransferFunctionDesign.from_dict(document)
+
+
+def test_every_look_of_the_phantom_keeps_fog_and_background_clear(phantom_design):
+    roles = phantom_design.look_context().roles
+    for look in phantom_design.looks:
+        assert not any(v and r in ("background", "fog") for v, r in zip(look.visible, roles))
+        shares = look.role_shares(roles)
+        assert shares["fog"] == 0.0 and shares["background"] == 0.0
+        assert sum(shares.values()) == pytest.approx(1.0)
+
+
+def test_the_see_through_look_keeps_the_bulk_at_its_share(phantom_design):
+    look = make_look("see-through", phantom_design.look_context())
+    assert look is not None
+    share = look.role_shares(phantom_design.look_context().roles)["bulk"]
+    low, high = RULES.see_through
+    assert low <= share <= high
+    assert phantom_design.check_look("see-through") == []
+
+
+def test_the_thumbnail_shows_the_look(phantom_design):
+    looks = phantom_design.looks
+    pictures = [phantom_design.thumbnail(look, size=48) for look in looks]
+    assert all(p.shape == (48, 48, 3) and p.dtype == np.uint8 for p in pictures)
+    assert all(p.max() > 0 for p in pictures)  # something is drawn
+    assert any(not np.array_equal(pictures[0], p) for p in pictures[1:])
+
+
+# The oracle on both sides of each promise ----------------------------------------------------------------------------
+
+
+def shell_context():
+    """Air (bin 0), a soft shell (bins 10-19, bulk) around a dense core (bins 30-39)."""
+    n = 40
+    z, y, x = np.indices((n, n, n)) - (n - 1) / 2
+    r = np.sqrt(x**2 + y**2 + z**2)
+    bins = np.select([r < 6, r < 17], [35, 15], 0).astype(np.intp)
+    labels = np.select([np.arange(40) < 5, np.arange(40) < 19], [0, 1], 2)  # no partial volume between them
+    voxels = np.bincount(labels[bins.ravel()], minlength=3)
+    classes = make_classes(voxels.tolist())
+    class_bins = np.array([0.0, 15.0, 35.0])
+    return LookContext.build(
+        classes=classes, tissue_of_class=np.arange(3), class_values=class_bins, class_bins=class_bins,
+        labels=labels, noise_sd=1.0, preview=Preview(bins, (5.0, 5.0, 5.0), 40), kind="ct",
+    )  # fmt: skip
+
+
+def test_check_look_measures_the_promised_share_on_both_sides():
+    context = shell_context()
+    look = make_look("see-through", context)
+    assert check_look(context, look) == []
+    # The same look with an opaque shell: the bulk takes the picture, the promise is broken.
+    opaque = dataclasses.replace(look, opacities=[0.0, 1.0, look.opacities[2]])
+    assert any("bulk gives" in failure for failure in check_look(context, opaque))
+
+
+def test_check_look_measures_the_light_kept_on_both_sides():
+    context = shell_context()
+    look = make_look("dense-parts", context)
+    assert check_look(context, look) == []
+    veiled = dataclasses.replace(look, visible=[False, True, True], opacities=[0.0, 0.3, look.opacities[2]])
+    assert any("dense keeps" in failure for failure in check_look(context, veiled))
+
+
+def test_check_look_finds_fog_shown_and_the_densest_tissue_hidden_and_a_falling_ramp():
+    context = shell_context()
+    look = make_look("all-tissues", context)
+    assert look.monotone and check_look(context, look) == []
+    falling = dataclasses.replace(look, opacities=[0.0, 0.5, 0.1])
+    assert any("does not rise" in failure for failure in check_look(context, falling))
+    hidden = dataclasses.replace(look, visible=[False, True, False])
+    assert any("densest real tissue" in failure for failure in check_look(context, hidden))
+    background = dataclasses.replace(look, visible=[True, True, True])
+    assert any("background or fog shown" in failure for failure in check_look(context, background))
