@@ -41,7 +41,9 @@ CLASS_KEYS = {
     "id", "rank", "voxels", "fraction", "isovalue_bins", "value_ranges", "exemplar_bin", "color", "opacity",
     "visible", "background",
 }  # fmt: skip
-DATA_FILES = ("similarity.npy", "similarity.png", "classes.json", "transfer_function.vp.json", "transfer_function.vp")
+DATA_FILES = (
+    "similarity.npy", "similarity.png", "classes.json", "transfer_function.vp.json", "transfer_function.vp", "looks.png"
+)  # fmt: skip
 RENDER_FILES = ("render.png", "classes.png", "scene/scene.mrml")
 RENDER_SIZE = 96  # render.png side in the tests (class tiles are half of it): small keeps CPU ray casting fast
 
@@ -108,7 +110,14 @@ def _assert_design_points(volume_property, document: dict) -> None:
     np.testing.assert_allclose(colors[:, 0], expected.x, rtol=0, atol=1e-6)
     np.testing.assert_allclose(colors[:, 1:], expected.color, rtol=0, atol=1e-6)
     np.testing.assert_allclose(alphas[:, 0], expected.x, rtol=0, atol=1e-6)
-    np.testing.assert_allclose(alphas[:, 1], expected.opacity, rtol=0, atol=1e-6)
+    # A volume property keeps its unit distance; the legacy .vp file has none, so its opacities are per mm.
+    unit_distance = volume_property.GetScalarOpacityUnitDistance()
+    opacity = (
+        expected.opacity
+        if unit_distance != 1.0
+        else 1.0 - (1.0 - expected.opacity) ** (1.0 / document["unit_distance"])
+    )
+    np.testing.assert_allclose(alphas[:, 1], opacity, rtol=0, atol=1e-6)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -199,6 +208,8 @@ def test_vp_json_and_vp_load_into_slicer_property_nodes(rendered: Path) -> None:
     node, storage = slicer.vtkMRMLVolumePropertyNode(), slicer.vtkMRMLVolumePropertyJsonStorageNode()
     storage.SetFileName(str(rendered / "transfer_function.vp.json"))
     assert storage.ReadData(node) == 1
+    assert node.GetVolumeProperty().GetScalarOpacityUnitDistance() == pytest.approx(document["unit_distance"])
+    assert document["unit_distance"] != 1.0  # else the .vp check below would not tell the two apart
     _assert_design_points(node.GetVolumeProperty(), document)
     np.testing.assert_allclose(node.GetEffectiveRange(), document["value_range"], atol=1e-9)
 
@@ -608,7 +619,9 @@ def test_reruns_replace_only_our_files(tmp_path: Path, capfd) -> None:
     assert err.startswith("isosimtf: warning: removed") and "render.png" in err and "scene/scene.mrml" in err
     assert not (outdir / "render.png").exists() and not (outdir / "scene" / "Data").exists()
     assert (outdir / "scene" / "my notes.txt").is_file() and (outdir / "my.png").is_file()
-    assert set(_load(outdir)["written"]) == set(DATA_FILES)
+    document = _load(outdir)
+    looks = {f"looks/{look['name']}.vp.json" for look in document["looks"]}
+    assert looks and set(document["written"]) == set(DATA_FILES) | looks
 
 
 def test_useless_results_are_refused_or_warned(tmp_path: Path, capfd) -> None:

@@ -157,7 +157,7 @@ def test_a_full_disk_leaves_the_previous_files_whole(tmp_path: Path, capfd) -> N
 
     outdir = tmp_path / "out"
     assert _run([*PHANTOM, "--no-render", "-o", outdir], capfd)[0] == 0
-    before = {p.name: p.read_bytes() for p in outdir.iterdir()}
+    before = {p.relative_to(outdir): p.read_bytes() for p in outdir.rglob("*") if p.is_file()}
 
     def limit() -> None:
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
@@ -167,7 +167,8 @@ def test_a_full_disk_leaves_the_previous_files_whole(tmp_path: Path, capfd) -> N
     done = subprocess.run(argv, capture_output=True, text=True, preexec_fn=limit, timeout=300)
     assert done.returncode == 1 and done.stderr.count("\n") == 1, done.stderr
     assert done.stderr.startswith(f"isosimtf: error: cannot write '{outdir / 'similarity.npy'}': ")
-    assert {p.name: p.read_bytes() for p in outdir.iterdir()} == before and _no_temporary_files(outdir)
+    assert {p.relative_to(outdir): p.read_bytes() for p in outdir.rglob("*") if p.is_file()} == before
+    assert _no_temporary_files(outdir)
 
 
 @needs_slicer

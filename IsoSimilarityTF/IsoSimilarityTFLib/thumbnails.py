@@ -140,7 +140,7 @@ def ray_visibility(
         views: names from :data:`VIEWS_ALL_SIX`; a name given twice counts twice.
 
     Returns:
-        ``(n_bins,)`` float64 visibility per bin, in pixels of the preview's grid: summed over the bins, the opacity
+        ``(n_bins,)`` float64 visibility per bin, in rays (a ray gives at most 1): summed over the bins, the opacity
         ``1 - T`` summed over every ray of the views.
 
     Raises:

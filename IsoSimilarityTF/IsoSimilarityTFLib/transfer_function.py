@@ -209,8 +209,16 @@ def write_vp_json(volume_property, path: PathLike, effective_range: Optional[Seq
 
 
 def write_vp(volume_property, path: PathLike) -> None:
-    """Write a ``vtkVolumeProperty`` as Slicer's legacy ``.vp`` text file."""
+    """Write a ``vtkVolumeProperty`` as Slicer's legacy ``.vp`` text file.
+
+    The file has no scalar opacity unit distance (Slicer reads it as 1 mm), so each opacity ``a`` per unit distance
+    ``u`` is written as the same opacity per mm, ``1 - (1 - a) ** (1 / u)``: the picture stays the same.
+    """
     opacity, gradient, color = points_of_volume_property(volume_property)
+    unit_distance = float(volume_property.GetScalarOpacityUnitDistance())
+    if unit_distance != 1.0:
+        opacity = opacity.copy()
+        opacity[:, 1] = 1.0 - (1.0 - np.clip(opacity[:, 1], 0.0, 1.0)) ** (1.0 / unit_distance)
 
     def line(rows: np.ndarray) -> str:
         flat = rows.ravel().tolist()
