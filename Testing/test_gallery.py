@@ -9,7 +9,7 @@ from IsoSimilarityTFLib import design_transfer_function
 from IsoSimilarityTFLib.classes import IsovalueClass
 from IsoSimilarityTFLib.design import TransferFunctionDesign
 from IsoSimilarityTFLib.gallery import LOOK_NAMES, LookContext, check_look, make_look
-from IsoSimilarityTFLib.roles import RULES, class_roles, dense_tissues
+from IsoSimilarityTFLib.roles import RULES, class_roles, dense_classes
 from IsoSimilarityTFLib.visibility import Preview
 from isosimtf.phantom import head_phantom
 
@@ -38,6 +38,8 @@ def roles_of(means, voxels, contact=None, noise_sd=1.0, tissue_of=None):
 def test_a_class_within_the_fog_separation_of_the_background_is_fog(gap, role):
     # background at 0, a class `gap` noise widths above it, the main tissue far above
     assert roles_of([0.0, gap, 40.0], [5000, 100, 3000])[1] == role
+    # and below it: a cropped CT whose largest class (the background) is soft tissue, with lungs far below
+    assert roles_of([20.0, 20.0 - gap, 60.0], [5000, 100, 3000])[1] == role
 
 
 @pytest.mark.parametrize("contact, role", [(RULES.rim_contact - 0.01, "bulk"), (RULES.rim_contact + 0.01, "rim")])
@@ -52,11 +54,19 @@ def test_a_real_tissue_above_the_largest_by_the_dense_separation_is_dense(gap, d
 
 
 @pytest.mark.parametrize("share, dense", [(0.0099, False), (0.0101, True)])
-def test_a_dense_tissue_must_be_real(share, dense):
+def test_a_dense_class_must_be_of_a_real_tissue(share, dense):
     # non-background voxels: 10_000 in all; the top tissue holds `share` of them
     top = int(round(share * 10_000))
     classes = make_classes([50_000, 10_000 - top, top])
-    assert (2 in dense_tissues(classes, np.arange(3), np.array([0.0, 20.0, 60.0]), 1.0)) is dense
+    assert (2 in dense_classes(classes, np.arange(3), np.array([0.0, 20.0, 60.0]), 1.0)) is dense
+
+
+def test_dense_is_decided_per_class_inside_a_tissue():
+    # Soft tissue and trabecular bone in one tissue (no valley between them in the histogram): the bone's class is
+    # dense, the soft tissue's next to it is not.
+    classes = make_classes([50_000, 8_000, 1_000, 600])
+    roles = class_roles(classes, np.array([0, 1, 1, 2]), np.array([0.0, 20.0, 20.0 + 5.0, 40.0]), 1.0)
+    assert roles == ["background", "bulk", "dense", "dense"]
 
 
 def test_a_dense_class_stays_dense_when_it_touches_the_background():

@@ -38,6 +38,12 @@ from .visibility import Preview, visibility_histogram
 
 #: Every look the gallery can offer, in the order it offers them after the first click.
 LOOK_NAMES = ("dense-parts", "outer-surface", "see-through", "thin-structures", "all-tissues", "classes")
+# The visibility step stops within this of the light it aims to keep (its last round's measure, float32 sums).
+_KEPT_TOLERANCE = 0.01
+# Rounds of clearing what lies in front of the dense parts (each sets the factor from the measured transmittance).
+_CLEARING_ROUNDS = 6
+# Aimed above the promised share of the dense parts by this much, so the last round's estimate lands inside it.
+_SHARE_MARGIN = 0.02
 # Rounds of the see-through look's search for the bulk's opacity (a secant in log opacity: 6 reach 1 % of share).
 _SEE_THROUGH_ROUNDS = 6
 
@@ -147,14 +153,31 @@ def first_look_name(kind: str) -> str:
 
 
 def gallery(context: LookContext) -> list[GalleryLook]:
-    """Every look the data support, the first click first, no two with the same transfer function."""
+    """Every look the data support, the first click first, no two with the same transfer function. A look is
+    supported where its roles exist and, measured on the preview, it keeps its promised shares (the first click is
+    always offered)."""
     first = first_look_name(context.kind)
     looks: list[GalleryLook] = []
     for name in (first, *(n for n in LOOK_NAMES if n != first)):
         look = make_look(name, context)
-        if look is not None and not any(look.same_picture(earlier) for earlier in looks):
+        if look is None or any(look.same_picture(earlier) for earlier in looks):
+            continue
+        if name == first or not broken_shares(look, context.roles):
             looks.append(look)
     return looks
+
+
+def broken_shares(look: GalleryLook, roles: Sequence[str]) -> list[str]:
+    """The promised shares (:attr:`GalleryLook.promise`) that ``look`` misses, as measured when it was made."""
+    if look.class_shares is None:
+        return []
+    role_array = np.array(roles, dtype=object)
+    broken = []
+    for key, (low, high) in look.promise.items():
+        share = float(look.class_shares[np.isin(role_array, key.split("|"))].sum())
+        if not low <= share <= high:
+            broken.append(key)
+    return broken
 
 
 def make_look(name: str, context: LookContext) -> Optional[GalleryLook]:
@@ -186,8 +209,7 @@ def class_shares(context: LookContext, opacities: Sequence[float], visible: Sequ
     :func:`.look.bin_opacity_of`); None without a preview; zeros for an empty picture."""
     if context.preview is None:
         return None
-    light = visibility_histogram(context.preview, _bin_opacity(context, opacities, visible))
-    per_class = np.bincount(context.labels, weights=light, minlength=len(context.classes))
+    per_class = _light(context, np.asarray(opacities, dtype=np.float64), np.asarray(visible, dtype=bool))
     total = per_class.sum()
     return per_class / total if total > 0 else per_class
 
@@ -218,9 +240,44 @@ def _default(context: LookContext, kind: str) -> Made:
 
 
 def _dense_parts(context: LookContext) -> Made:
-    if context.kind != "ct" and not context.of_role("dense").any():  # on CT it is the first click, always offered
-        return None
-    return _default(context, "ct")
+    """The dense classes as surfaces, everything else shown made clearer until they keep ``rules.seen`` of their
+    light and give ``rules.dense_share`` of the picture. It starts from :func:`.look.default_look`'s dense tail on
+    CT-like data (the first click there), from the outer surface with the dense classes raised to the ramp's top on
+    other data (a bright lesion inside a FLAIR brain, the enhancing vessels of a contrast T1)."""
+    dense = context.of_role("dense")
+    if context.kind == "ct":
+        colors, opacities, visible = _default(context, "ct")
+    else:
+        colors, opacities, visible = _default(context, context.kind)
+        opacities = np.where(dense, np.maximum(opacities, context.rules.opacity_high), opacities)
+    if context.preview is None or not dense.any():
+        return (colors, opacities, visible) if context.kind == "ct" else None
+    opacities = np.asarray(opacities, dtype=np.float64)
+    visible = np.array(visible) | dense
+    alone = _light(context, opacities, dense)[dense].sum()
+    if alone <= 0:
+        return (colors, list(opacities), list(visible)) if context.kind == "ct" else None  # not in the preview
+    others = visible & ~dense
+    for _ in range(_CLEARING_ROUNDS):
+        light = _light(context, opacities, visible)
+        kept, share = light[dense].sum() / alone, light[dense].sum() / max(light.sum(), 1e-300)
+        if (kept >= context.rules.seen and share >= context.rules.dense_share) or not others.any():
+            break
+        # What lies in front passes about T of the light, T ** s once its opacity is scaled by s; a thin haze's own
+        # light scales about as s.
+        aim = context.rules.dense_share + _SHARE_MARGIN  # the linear estimate lands on either side of it
+        factor = min(
+            np.log(context.rules.seen) / np.log(min(max(kept, 1e-12), context.rules.seen)),
+            (share / max(1.0 - share, 1e-12)) * (1.0 - aim) / aim,
+        )
+        opacities = np.where(others, opacities * min(factor, 1.0), opacities)
+    return _with_ramp_colors(context, colors, dense), list(opacities), list(visible)
+
+
+def _light(context: LookContext, opacities: np.ndarray, visible: np.ndarray) -> np.ndarray:
+    """``(n_classes,)`` light each class sends to the eye (the preview's six views)."""
+    light = visibility_histogram(context.preview, _bin_opacity(context, opacities, visible))
+    return np.bincount(context.labels, weights=light, minlength=len(context.classes))
 
 
 def _outer_surface(context: LookContext) -> Made:
@@ -233,7 +290,9 @@ def _see_through(context: LookContext) -> Made:
     if context.preview is None or not dense.any() or not bulk.any():
         return None
     colors, opacities, visible = _default(context, "ct")
-    visible = np.array(visible) | bulk
+    # The dense parts as surfaces (at least the ramp's top), the bulk around them at the share searched below.
+    opacities = np.where(dense, np.maximum(opacities, context.rules.opacity_high), opacities)
+    visible = np.array(visible) | bulk | dense
     low, high = context.rules.see_through
     target = 0.5 * (low + high)
 
@@ -253,7 +312,7 @@ def _see_through(context: LookContext) -> Made:
         points.append((x2, bulk_share(x2) - target))
     best = min(points, key=lambda p: abs(p[1]))[0]
     opacities = np.where(bulk, np.exp(best), opacities)
-    colors = _with_ramp_colors(context, colors, bulk)
+    colors = _with_ramp_colors(context, colors, bulk | dense)
     return colors, list(opacities), list(visible)
 
 
@@ -332,7 +391,7 @@ _DESCRIPTIONS: dict[str, Callable[[LookRules], tuple[str, str, dict, dict, bool]
     "dense-parts": lambda r: (
         "Dense parts",
         "the dense parts inside, what encloses them cleared",
-        {},
+        {"dense": (r.dense_share, 1.0)},
         {"dense": r.seen},
         False,
     ),
@@ -390,7 +449,7 @@ def check_look(context: LookContext, look: GalleryLook) -> list[str]:
             members = np.isin(roles, key.split("|")) & visible
             alone = light_of(look.opacities, members)[members].sum()
             kept = float(per_class[members].sum() / alone) if alone > 0 else 1.0
-            if kept < minimum - 1e-9:
+            if kept < minimum - _KEPT_TOLERANCE:
                 failures.append(f"{look.name}: {key} keeps {kept:.2f} of its own light, promised {minimum:g}")
     if look.monotone:
         shown = np.flatnonzero(visible)
@@ -406,7 +465,9 @@ def check_look(context: LookContext, look: GalleryLook) -> list[str]:
 
 
 def _densest_real_tissue(context: LookContext) -> Optional[int]:
-    voxels = np.array([0 if r in ("background", "fog") else c.voxels for c, r in zip(context.classes, context.roles)])
+    """The densest tissue holding ``rules.real_share`` of the non-background voxels (as :func:`.look.default_look`
+    counts them), or None."""
+    voxels = np.array([0 if c.background else c.voxels for c in context.classes], dtype=np.float64)
     tissue_voxels = np.bincount(context.tissue_of_class, weights=voxels, minlength=context.n_tissues)
     real = np.flatnonzero(tissue_voxels >= context.rules.real_share * max(tissue_voxels.sum(), 1))
     if real.size == 0:

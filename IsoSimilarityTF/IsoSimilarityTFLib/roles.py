@@ -7,9 +7,11 @@ Roles, in the order they are decided (the first that applies):
 
 - ``"background"``: the background class (the thesis' rule: the largest class; see :mod:`.classes`).
 - ``"fog"``: noise in the background: the class's mean bin lies within :attr:`LookRules.fog_separation` noise
-  widths of the background's (a micro-CT's noisy air, the haze of an MRI). No look shows it.
-- ``"dense"``: a class of a real tissue lying :attr:`LookRules.dense_separation` noise widths above the largest
-  tissue: bone or contrast in soft tissue, the parts inside a housing, the core of a vessel, a bright lesion.
+  widths of the background's, either side (a micro-CT's noisy air, the haze of an MRI). No look shows it.
+- ``"dense"``: a class whose mean lies :attr:`LookRules.dense_separation` noise widths above the mean of the
+  largest tissue, in a real tissue: bone or contrast in soft tissue, the parts inside a housing, the core of a
+  vessel, a bright lesion. Decided per class: where the intensity model puts trabecular bone in one tissue with the
+  soft tissue (its histogram has no valley between them), the bone's classes are still dense.
 - ``"rim"``: most of its voxels touch the background (:attr:`LookRules.rim_contact`): the partial-volume skin of
   an object, or a structure only a voxel or two thick (a small vessel, a twig), which is all skin. Whether the rim
   *is* the structure or hides it, the data cannot say: one look shows it, another clears it.
@@ -40,6 +42,8 @@ class LookRules:
         rim_contact: a class more than this share of whose voxels touch the background lies on its fringe.
         seen: the share of its own light (rendered alone) that a structure a look shows through others must keep:
             what the eye reads as "seen through a veil" rather than "behind it".
+        dense_share: the *dense parts* look promises that the dense classes give at least this share of the picture:
+            they are what it shows, whatever is left of the bulk around them.
         surface_share: the *outer surface* look promises that the tissue met first gives at least this share.
         see_through: the *see-through* look keeps the enclosing bulk at this share of the picture, ``(low, high)``:
             enough to place the parts inside, little enough to see them.
@@ -55,6 +59,7 @@ class LookRules:
     dense_separation: float = 4.0
     rim_contact: float = 0.5
     seen: float = 0.8
+    dense_share: float = 0.5
     surface_share: float = 0.5
     see_through: tuple[float, float] = (0.2, 0.4)
     thin_opacity: float = 0.5
@@ -88,14 +93,14 @@ def class_roles(
     class_bins = np.asarray(class_bins, dtype=np.float64)
     background = next((c.id for c in classes if c.background), None)
     background_bin = class_bins[background] if background is not None else -np.inf
-    dense = set(dense_tissues(classes, tissue_of_class, class_bins, noise_sd, rules))
+    dense = set(dense_classes(classes, tissue_of_class, class_bins, noise_sd, rules))
     roles = []
     for c in classes:
         if c.background:
             roles.append("background")
-        elif class_bins[c.id] - background_bin < rules.fog_separation * noise_sd:
+        elif abs(class_bins[c.id] - background_bin) < rules.fog_separation * noise_sd:
             roles.append("fog")
-        elif int(tissue_of_class[c.id]) in dense:
+        elif c.id in dense:
             roles.append("dense")
         elif c.background_contact > rules.rim_contact:
             roles.append("rim")
@@ -104,15 +109,15 @@ def class_roles(
     return roles
 
 
-def dense_tissues(
+def dense_classes(
     classes: Sequence[IsovalueClass],
     tissue_of_class: np.ndarray,
     class_bins: np.ndarray,
     noise_sd: float,
     rules: LookRules = RULES,
 ) -> list[int]:
-    """Ids of the real tissues that lie ``rules.dense_separation`` noise widths above the largest tissue (the
-    background's left out), ascending."""
+    """Ids of the classes of real tissues whose mean lies ``rules.dense_separation`` noise widths above the mean of
+    the largest tissue (the background left out), ascending."""
     voxels = np.array([c.voxels for c in classes], dtype=np.float64)
     weight = np.maximum(voxels, 1e-9)  # an empty class still places its tissue
     foreground = np.array([not c.background for c in classes])
@@ -125,6 +130,6 @@ def dense_tissues(
     if total <= 0:
         return []
     largest = int(np.argmax(tissue_voxels))
-    real = tissue_voxels >= rules.real_share * total
-    above = tissue_bin >= tissue_bin[largest] + rules.dense_separation * noise_sd
-    return [int(t) for t in np.flatnonzero(real & above)]
+    real = tissue_voxels[tissue_of_class] >= rules.real_share * total
+    above = class_bins >= tissue_bin[largest] + rules.dense_separation * noise_sd
+    return [int(c) for c in np.flatnonzero(real & above & foreground)]
