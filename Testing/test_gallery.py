@@ -4,26 +4,14 @@ import dataclasses
 
 import numpy as np
 import pytest
+from test_look import make_classes
 
 from IsoSimilarityTFLib import design_transfer_function
-from IsoSimilarityTFLib.classes import IsovalueClass
 from IsoSimilarityTFLib.design import TransferFunctionDesign
 from IsoSimilarityTFLib.gallery import LOOK_NAMES, LookContext, check_look, make_look
 from IsoSimilarityTFLib.roles import RULES, class_roles, dense_classes
 from IsoSimilarityTFLib.visibility import Preview
 from isosimtf.phantom import head_phantom
-
-
-def make_classes(voxels, contact=None, background=0):
-    contact = contact or [0.0] * len(voxels)
-    return [
-        IsovalueClass(
-            id=i, rank=1, voxels=v, fraction=0.0, isovalue_bins=[i], value_ranges=[[i, i + 1]], exemplar_bin=i,
-            background=i == background, background_contact=contact[i],
-        )
-        for i, v in enumerate(voxels)
-    ]  # fmt: skip
-
 
 # Roles: each threshold on both sides of its boundary -----------------------------------------------------------------
 

@@ -108,7 +108,15 @@ COLIN = "/usr/share/mricron/templates/ch2.nii.gz"
 COLIN_BET = "/usr/share/mricron/templates/ch2bet.nii.gz"
 
 #: The presets suited to each kind of volume, and the one the targets compare with.
-_PRESETS_OF = {"CT": (CT_PRESETS, "CT-Bone"), "micro-CT": (CT_PRESETS, "CT-Bone"), "MRI": (MR_PRESETS, "MR-Default")}
+_PRESETS_OF = {
+    "CT": (CT_PRESETS, "CT-Bone"),
+    "micro-CT": (CT_PRESETS, "CT-Bone"),
+    "MRI": (MR_PRESETS, "MR-Default"),
+    "angio": (("CT-AAA", "MR-Angio"), "CT-AAA"),
+    "industrial": (CT_PRESETS, "CT-Bone"),
+    "plant": (CT_PRESETS, "CT-AAA"),
+    "simulation": (("CT-AAA", "MR-Default"), "MR-Default"),
+}
 
 #: The volumes of the benchmark: the four it began with, then the panel (issue 16: storages, resolutions, other real
 #: volumes, synthetic CTA and micro-CT; none was used to set a constant).
@@ -575,7 +583,10 @@ def visibility_summary(volumes: dict) -> list[str]:
                 f"{_pct(ours)} | {_pct(share(best))} | {_pct(share(FIRST_CLICK))} | {_pct(fog)} | "
                 f"{_fmt(r.get('brightness_ratio'))} | {_fmt(r.get('colour_noise_ratio'))} | {verdict_text} |"
             )
-    storages = {k: v for k, v in volumes.items() if k.startswith("head-ct") and v["shown_for"]}
+    # The lossless storages; HU clipped at 0 (everything below it lost) is its own variant group in look_panel.py.
+    storages = {
+        k: v for k, v in volumes.items() if k.startswith("head-ct") and k != "head-ct-clipped" and v["shown_for"]
+    }
     if len(storages) > 1:
         spread = max(
             max(sum(v["tissues"][view][OURS][t]["share"] for t in v["shown_for"]) for v in storages.values())
