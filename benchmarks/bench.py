@@ -74,6 +74,11 @@ OUT_OF_CORE_BIG = "beyond memory: 2048x2048x3200 uint16 raw NRRD (25 GiB)"
 # Targets of issue 12 for the command line on the head CT (wall time of the whole command, on a quiet machine).
 TARGET_LATENCY_NO_RENDER_S = 1.5
 TARGET_LATENCY_FULL_S = 3.5
+# Targets of issue 24: all looks with their thumbnails cost at most the similarity pass; switching a look and the
+# Detail slider (a regrouping, its look included) stay interactive.
+TARGET_LOOKS_OVER_SIMILARITY = 1.0
+TARGET_SWITCH_LOOK_S = 0.05
+TARGET_REGROUP_S = 0.1
 # Cells per chunk tried for the floor; the fastest on this machine is the floor.
 FLOOR_CHUNK_CELLS = (1 << 17, 1 << 18, 1 << 19)
 
@@ -319,6 +324,9 @@ def _child_pipeline(cfg: dict) -> dict:
             extra.append(time.perf_counter() - start)
         out["similarity_levels"] = {"levels": int(cfg["extra_levels"]), "median_s": _median(extra), "times": extra}
 
+    if cfg.get("looks"):
+        out["looks"] = _measure_looks(design, repeats)
+
     if cfg.get("render"):
         from isosimtf.rendering import render_volume
 
@@ -345,6 +353,33 @@ def _child_pipeline(cfg: dict) -> dict:
     out["loadavg_end"] = os.getloadavg()
     out["library_version"] = IsoSimilarityTFLib.__version__
     return out
+
+
+def _measure_looks(design: Any, repeats: int) -> dict:
+    """The gallery beyond the first click (made with the grouping), the thumbnails of looks.png, switching a look,
+    and a regrouping (the Detail slider, the first click remade): medians over ``repeats`` rounds."""
+    from isosimtf.outputs import THUMBNAIL_SIZE
+
+    times: dict[str, list[float]] = {"gallery": [], "thumbnails": [], "switch": [], "regroup": []}
+    for _ in range(repeats):
+        design.look_name = None
+        design.regroup(design.options["tissues"])  # as the design leaves it: the first look made, no gallery yet
+        start = time.perf_counter()
+        looks = design.looks
+        times["gallery"].append(time.perf_counter() - start)
+        start = time.perf_counter()
+        for look in looks:
+            design.thumbnail(look, size=THUMBNAIL_SIZE)
+        times["thumbnails"].append(time.perf_counter() - start)
+        start = time.perf_counter()
+        for look in looks:
+            design.use_look(look.name)
+        times["switch"].append((time.perf_counter() - start) / len(looks))
+        design.look_name = None
+        start = time.perf_counter()
+        design.regroup(design.options["tissues"])
+        times["regroup"].append(time.perf_counter() - start)
+    return {"n_looks": len(design.looks), **{f"{k}_s": _median(v) for k, v in times.items()}}
 
 
 def similarity_floor(bins: Any, chunk_cells: int) -> Any:
@@ -641,6 +676,7 @@ def configurations(quick: bool, data: Path | None = None, big: bool = False) -> 
             "source": "head-ct",
             "repeats": rep_small,
             "render": True,
+            "looks": True,
         },
         {
             "kind": "pipeline",
@@ -648,6 +684,7 @@ def configurations(quick: bool, data: Path | None = None, big: bool = False) -> 
             "source": "brain-mri",
             "repeats": rep_small,
             "render": not quick,
+            "looks": True,
         },
     ]
     targets = [
@@ -658,6 +695,7 @@ def configurations(quick: bool, data: Path | None = None, big: bool = False) -> 
             "size": 256,
             "repeats": 3 if quick else 7,
             "render": False,
+            "looks": True,
         },
         {
             "kind": "pipeline",
@@ -810,6 +848,40 @@ def _linear_fit(xs: list[float], ys: list[float]) -> dict:
     }
 
 
+def _looks_verdicts(results: list[dict]) -> list[list[str]]:
+    """The rows of the issue 24 targets, one set per configuration that measured its looks."""
+    rows = []
+    for r in results:
+        looks = r.get("looks")
+        if not looks:
+            continue
+        similarity = r["median_s"]["similarity"]
+        cost = looks["gallery_s"] + looks["thumbnails_s"]
+        ratio = cost / similarity
+        rows.append(
+            [
+                f"{r['config']['name']}: {looks['n_looks']} looks + thumbnails / similarity",
+                f"<= {TARGET_LOOKS_OVER_SIMILARITY:g}x",
+                f"{ratio:.2f}x ({_fmt_s(looks['gallery_s'])} + {_fmt_s(looks['thumbnails_s'])} vs "
+                f"{_fmt_s(similarity)})",
+                "PASS" if ratio <= TARGET_LOOKS_OVER_SIMILARITY else "FAIL",
+            ]
+        )
+        for key, label, limit in (
+            ("switch_s", "switching a look", TARGET_SWITCH_LOOK_S),
+            ("regroup_s", "regrouping (Detail slider)", TARGET_REGROUP_S),
+        ):
+            rows.append(
+                [
+                    f"{r['config']['name']}: {label}",
+                    f"<= {limit:g} s",
+                    _fmt_s(looks[key]),
+                    "PASS" if looks[key] <= limit else "FAIL",
+                ]
+            )
+    return rows
+
+
 def build_report(machine: dict, groups: dict[str, list[dict]], quick: bool, wall_s: float) -> tuple[str, dict]:
     """Markdown and JSON summaries (also the PASS/FAIL verdicts)."""
     everything = [r for group in groups.values() for r in group]
@@ -954,6 +1026,15 @@ def build_report(machine: dict, groups: dict[str, list[dict]], quick: bool, wall
     summary["targets"] += [dict(zip(["target", "limit", "measured", "verdict"], v)) for v in verdicts12]
     md.append("\n## Targets of issue 12\n")
     md.append(_table(["target", "limit", "measured", "verdict"], verdicts12))
+    verdicts24 = _looks_verdicts(everything)
+    summary["targets"] += [dict(zip(["target", "limit", "measured", "verdict"], v)) for v in verdicts24]
+    md.append("\n\n## Targets of issue 24 (the gallery of looks)\n")
+    md.append(
+        "The gallery beyond the first click (which the tissues stage makes with the grouping), plus the "
+        "thumbnails of looks.png, against the similarity pass of the same run; switching a look (per look); a "
+        "regrouping with its first click remade (the Detail slider).\n\n"
+    )
+    md.append(_table(["target", "limit", "measured", "verdict"], verdicts24))
     if latency and "error" not in latency:
         md.append("\n\n### Command-line latency (head CT, whole commands, interleaved)\n")
         md.append(

@@ -146,6 +146,8 @@ class TransferFunctionDesign:
     unit_distance: float = 1.0
     look_name: Optional[str] = None
     _gallery: Optional[list[GalleryLook]] = field(default=None, init=False, repr=False, compare=False)
+    # The current grouping's look context: the gallery reuses the renders its first look needed.
+    _context: Optional[LookContext] = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def edges(self) -> np.ndarray:
@@ -265,7 +267,7 @@ class TransferFunctionDesign:
         """Back to the chosen look (:attr:`look_name`, by default the first click's) of the current grouping: its
         colours, opacities and visibility, made again from the classes (see :mod:`.gallery`)."""
         self._gallery = None
-        context = self.look_context()
+        context = self._context = self.look_context()
         name = self.look_name or first_look_name(self.kind)
         look = make_look(name, context) or make_look(first_look_name(self.kind), context)
         self._apply(look)
@@ -291,7 +293,7 @@ class TransferFunctionDesign:
         """The gallery: every look the data support, ranked, the first click first (see :mod:`.gallery`); made
         once per grouping."""
         if self._gallery is None:
-            self._gallery = gallery(self.look_context())
+            self._gallery = gallery(self._context or self.look_context())
         return self._gallery
 
     def use_look(self, name: str) -> None:

@@ -73,6 +73,11 @@ class LookContext:
     max_classes: int = 15
     roles: list[str] = field(default_factory=list)
     rules: LookRules = RULES
+    # The default looks made so far, by kind ("ct" or not): several looks start from the same one.
+    _defaults: dict = field(default_factory=dict, repr=False, compare=False)
+    # The light per class of every transfer function rendered so far, by its bin opacities: a look's last step and
+    # its measure are often one render.
+    _renders: dict = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
     def build(cls, *, rules: LookRules = RULES, **inputs) -> "LookContext":
@@ -224,19 +229,24 @@ Made = Optional[tuple[list[list[float]], list[float], list[bool]]]
 
 
 def _default(context: LookContext, kind: str) -> Made:
-    look = default_look(
-        list(context.classes),
-        context.tissue_of_class,
-        context.class_values,
-        kind,
-        labels=context.labels,
-        class_bins=context.class_bins,
-        noise_sd=context.noise_sd,
-        preview=context.preview,
-        colors=context.colors,
-        max_classes=context.max_classes,
-    )
-    return look.colors, look.opacities, look.visible
+    """:func:`.look.default_look` of ``kind`` (made once per context; only ``"ct"`` differs from the others), as
+    fresh lists the caller may change."""
+    key = "ct" if kind == "ct" else "other"
+    if key not in context._defaults:
+        context._defaults[key] = default_look(
+            list(context.classes),
+            context.tissue_of_class,
+            context.class_values,
+            kind,
+            labels=context.labels,
+            class_bins=context.class_bins,
+            noise_sd=context.noise_sd,
+            preview=context.preview,
+            colors=context.colors,
+            max_classes=context.max_classes,
+        )
+    look = context._defaults[key]
+    return [list(c) for c in look.colors], list(look.opacities), list(look.visible)
 
 
 def _dense_parts(context: LookContext) -> Made:
@@ -276,8 +286,12 @@ def _dense_parts(context: LookContext) -> Made:
 
 def _light(context: LookContext, opacities: np.ndarray, visible: np.ndarray) -> np.ndarray:
     """``(n_classes,)`` light each class sends to the eye (the preview's six views)."""
-    light = visibility_histogram(context.preview, _bin_opacity(context, opacities, visible))
-    return np.bincount(context.labels, weights=light, minlength=len(context.classes))
+    bin_opacity = _bin_opacity(context, opacities, visible)
+    key = bin_opacity.tobytes()
+    if key not in context._renders:
+        light = visibility_histogram(context.preview, bin_opacity)
+        context._renders[key] = np.bincount(context.labels, weights=light, minlength=len(context.classes))
+    return context._renders[key]
 
 
 def _outer_surface(context: LookContext) -> Made:
