@@ -6,13 +6,17 @@ import pytest
 from IsoSimilarityTFLib import TransferFunctionDesign, design_transfer_function
 from IsoSimilarityTFLib.classes import IsovalueClass
 from IsoSimilarityTFLib.look import (
+    FRINGE_CONTACT,
     OPACITY_HIGH,
     OPACITY_LOW,
     RAMP,
+    REAL_SHARE,
     SEEN,
+    TAIL_SHARE,
     default_look,
     dense_tail,
     detect_kind,
+    fringe_cores_apart,
     gradient_ramp_top,
     ramp_colors,
     ramped_opacity,
@@ -105,6 +109,28 @@ def test_a_dense_tail_enclosed_by_the_largest_tissue_is_a_ct():
     assert detect_kind(means, voxels, 2.6, encloses=lambda outer, inner: 0.2) == "mr"
     assert detect_kind([20.0, 70.0, 80.0], voxels, 2.6) == "mr"
     assert detect_kind([77.0, 155.0, 206.0], [47.0, 483.0, 470.0], 7.75) == "mr"
+
+
+@pytest.mark.parametrize("above, tail", [(TAIL_SHARE * 0.99, True), (TAIL_SHARE * 1.01, False)])
+def test_a_dense_tail_holds_at_most_the_tail_share_of_the_largest_tissue(above, tail):
+    # Soft tissue of 1000 voxels; the tissues above it hold `above` of that, the bone and a second dense tissue.
+    voxels = [230.0, 1000.0, 1000.0 * above / 2, 1000.0 * above / 2]
+    assert (dense_tail([20.0, 70.0, 140.0, 160.0], voxels, 2.6) != []) is tail
+
+
+@pytest.mark.parametrize("share, tail", [(REAL_SHARE * 1.02, True), (REAL_SHARE * 0.98, False)])
+def test_a_tissue_of_the_dense_tail_is_real(share, tail):
+    # The dense tissue holds `share` of all the voxels of the tissues.
+    others = 1230.0
+    dense = share * others / (1.0 - share)
+    assert (dense_tail([20.0, 70.0, 140.0], [230.0, 1000.0, dense], 2.6) == [2]) is tail
+
+
+@pytest.mark.parametrize("contact, shown", [(FRINGE_CONTACT - 0.01, True), (FRINGE_CONTACT + 0.01, False)])
+def test_a_tissue_most_of_whose_voxels_touch_the_background_starts_hidden(contact, shown):
+    classes = make_classes([10_000, 1000, 3000], contact=[1.0, contact, 0.0])
+    look = default_look(classes, np.arange(3), np.array([0.0, 20.0, 40.0]), "mr", noise_sd=1.0)
+    assert look.visible == [False, shown, True]
 
 
 # The visibility step -------------------------------------------------------------------------------------------------
@@ -378,3 +404,33 @@ def test_max_classes_counts_classes_in_whole_tissues():
     assert sum(visible) == 8 and visible[1:8] == [True] * 7 and visible[-1]  # plus the densest real tissue
     assert not any(visible[8:10])
     assert default_look(classes, tissue_of, values, "mr", max_classes=0).visible == [False] * 10 + [True]
+
+
+# A fringe tissue's core ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("top_contact, split", [(FRINGE_CONTACT - 0.01, True), (FRINGE_CONTACT + 0.01, False)])
+def test_a_fringe_tissues_core_is_a_tissue_of_its_own(top_contact, split):
+    # Tissue 1 is a fringe (most of its voxels touch the background): its top class is its core when it does not.
+    contact = np.array([1.0, 0.9, 0.8, top_contact, 0.0])
+    voxels = np.array([10_000.0, 500, 400, 300, 2000])
+    tissue_of = np.array([0, 1, 1, 1, 2])
+    apart = fringe_cores_apart(tissue_of, contact, voxels, np.array([True, False, False, False, False]))
+    assert apart.tolist() == ([0, 1, 1, 2, 3] if split else [0, 1, 1, 1, 2])
+
+
+def test_a_tissue_that_is_no_fringe_is_never_split():
+    contact = np.array([1.0, 0.6, 0.1, 0.0])  # tissue 1 as a whole: 0.6 * 100 + 0.1 * 900 over 1000 = 0.15
+    tissue_of = np.array([0, 1, 1, 2])
+    apart = fringe_cores_apart(tissue_of, contact, np.array([10_000.0, 100, 900, 500]), np.arange(4) == 0)
+    assert apart.tolist() == [0, 1, 1, 2]
+
+
+def test_the_core_of_small_vessels_is_shown_with_the_fringe_cleared():
+    """A thresholded angiogram: the lowest tissue holds the partial volume of every vessel; its classes touching the
+    background are cleared, the one that does not (small vessels' cores) is shown (before: hidden with its tissue)."""
+    classes = make_classes([90_000, 3000, 2500, 1200, 2000], contact=[1.0, 1.0, 0.9, 0.2, 0.0])
+    tissue_of = np.array([0, 1, 1, 1, 2])
+    means = np.array([0.0, 20.0, 30.0, 40.0, 60.0])
+    look = default_look(classes, tissue_of, means, "mr", noise_sd=1.0)
+    assert look.visible == [False, False, False, True, True]

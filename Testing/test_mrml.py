@@ -99,7 +99,9 @@ def test_class_edit_updates_the_node_in_place_and_only_that_class(slicer_app, ph
     update_property_node(node, design)
     assert node.GetVolumeProperty() is vp and vp.GetScalarOpacity() is opacity_function
     colors_after, opacities_after = tf_at(node, centres)
-    changed = np.any(colors_after != colors_before, axis=1)  # colour: that class only (opacity ramps reach further)
+    # Colour: that class only (opacity ramps reach further; where they move, VTK's interpolation between two equal
+    # colours may differ in the last bit).
+    changed = np.any(np.abs(colors_after - colors_before) > 1e-9, axis=1)
     shown = opacities_after > 0
     assert list(np.flatnonzero(changed & shown)) == target.isovalue_bins
     assert design_of(node).class_by_id(target.id).color == [0.0, 1.0, 1.0]
