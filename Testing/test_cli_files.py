@@ -11,7 +11,7 @@ import pytest
 
 from IsoSimilarityTFLib.design import TransferFunctionDesign
 from isosimtf import cli
-from isosimtf.output_folder import LOCK_FILE, MAX_OUTDIR_CHARACTERS, TEMPORARY_PREFIX
+from isosimtf.output_folder import JOURNAL_FILE, LOCK_FILE, MAX_OUTDIR_CHARACTERS, TEMPORARY_PREFIX, file_stamp
 from isosimtf.rendering import slicer_core_available
 
 needs_slicer = pytest.mark.skipif(not slicer_core_available(), reason="slicer-core is not installed")
@@ -134,17 +134,26 @@ def test_a_failed_write_leaves_no_part_and_records_nothing_half_written(tmp_path
     assert (outdir / "transfer_function.vp").read_bytes() == before  # the old file, whole
     assert _no_temporary_files(outdir)
     document = _document(outdir)
-    for name, (size, _) in document["written_stamps"].items():
-        assert (outdir / name).stat().st_size == size, name  # every file recorded is complete
+    for name, stamp in document["written_stamps"].items():
+        assert file_stamp(outdir / name) == stamp, name  # every file recorded is complete, as recorded
 
 
 def test_a_killed_runs_leftovers_are_cleared_by_the_next_run(tmp_path: Path, capfd) -> None:
     outdir = tmp_path / "out"
-    (outdir / f"{TEMPORARY_PREFIX}abc123" / "scene").mkdir(parents=True)
+    (outdir / f"{TEMPORARY_PREFIX}staging-123-abc_9" / "scene").mkdir(parents=True)
     (outdir / f"{TEMPORARY_PREFIX}99-render.png").write_bytes(b"part")
+    (outdir / "looks").mkdir()
+    (outdir / "looks" / f"{TEMPORARY_PREFIX}99-see-through.vp.json").write_bytes(b"part")
     (outdir / "notes.txt").write_text("mine")
+    # Entries that only start like ours are the user's: never removed (before: every .isosimtf-* went, rmtree).
+    (outdir / f"{TEMPORARY_PREFIX}my-backup" / "a").mkdir(parents=True)
+    (outdir / f"{TEMPORARY_PREFIX}99-notes.txt").write_text("mine")
     assert _run([*PHANTOM, "--no-render", "-o", outdir], capfd)[0] == 0
-    assert _no_temporary_files(outdir) and (outdir / "notes.txt").read_text() == "mine"
+    assert not (outdir / f"{TEMPORARY_PREFIX}staging-123-abc_9").exists()
+    assert not (outdir / f"{TEMPORARY_PREFIX}99-render.png").exists()
+    assert not (outdir / "looks" / f"{TEMPORARY_PREFIX}99-see-through.vp.json").exists()
+    assert (outdir / "notes.txt").read_text() == "mine" and (outdir / f"{TEMPORARY_PREFIX}99-notes.txt").is_file()
+    assert (outdir / f"{TEMPORARY_PREFIX}my-backup" / "a").is_dir()
 
 
 def test_a_full_disk_leaves_the_previous_files_whole(tmp_path: Path, capfd) -> None:
@@ -181,5 +190,111 @@ def test_a_render_that_fails_midway_still_records_its_complete_pictures(tmp_path
     assert code == 1 and "rendering failed" in err
     document = _document(outdir)
     assert "classes.png" in document["written"] and "render.png" not in document["written"]
-    assert document["written_stamps"]["classes.png"][0] == (outdir / "classes.png").stat().st_size
+    assert document["written_stamps"]["classes.png"] == file_stamp(outdir / "classes.png")
     assert _no_temporary_files(outdir)
+
+
+# Only what is ours is ever removed or replaced (issue 26) ------------------------------------------------------------
+
+
+def test_a_copied_record_never_makes_the_next_run_remove_what_it_names(tmp_path: Path, capfd) -> None:
+    """Before: a classes.json the tool did not write (copied, restored from a tar with its mtimes) made the next run
+    delete every file it listed, at any depth; stamps copied from the files themselves passed the check."""
+    outdir = tmp_path / "out"
+    (outdir / "notes").mkdir(parents=True)
+    mine = {"notes/plan.txt": "mine", "render.png": "my picture", "results.csv": "1,2"}
+    for name, text in mine.items():
+        (outdir / name).write_text(text)
+    forged = {
+        "tool": {"name": "isosimtf"},
+        "written": [*mine, "../outside.txt"],
+        # size and time copied from the files (what the old check compared), and a real hash for a name not ours
+        "written_stamps": {
+            "notes/plan.txt": file_stamp(outdir / "notes/plan.txt"),
+            "results.csv": file_stamp(outdir / "results.csv"),
+            "render.png": [(outdir / "render.png").stat().st_size, (outdir / "render.png").stat().st_mtime_ns],
+        },
+    }
+    (tmp_path / "outside.txt").write_text("mine too")
+    (outdir / "classes.json").write_text(json.dumps(forged))
+    code, err = _run([*PHANTOM, "--no-render", "-o", outdir], capfd)
+    assert code == 0, err
+    assert all((outdir / name).read_text() == text for name, text in mine.items())
+    assert (tmp_path / "outside.txt").read_text() == "mine too" and "warning: removed" not in err
+
+
+def test_a_users_file_with_an_outputs_name_is_refused_unless_overwrite(tmp_path: Path, capfd) -> None:
+    outdir = tmp_path / "out"
+    outdir.mkdir()
+    (outdir / "transfer_function.vp").write_text("my own transfer function")
+    code, err = _run([*PHANTOM, "--no-render", "-o", outdir], capfd)
+    assert code == 2 and err.count("\n") == 1
+    assert f"'{outdir / 'transfer_function.vp'}' was not written by isosimtf" in err and "--overwrite" in err
+    assert (outdir / "transfer_function.vp").read_text() == "my own transfer function"
+    assert not (outdir / "classes.json").exists()  # refused before any work
+    code, err = _run([*PHANTOM, "--no-render", "-o", outdir, "--overwrite"], capfd)
+    assert code == 0 and (outdir / "transfer_function.vp").read_text() != "my own transfer function"
+    # Now it is ours: the next run replaces it without --overwrite.
+    assert _run([*PHANTOM, "--no-render", "-o", outdir], capfd)[0] == 0
+
+
+def test_a_classes_json_of_someone_else_is_refused(tmp_path: Path, capfd) -> None:
+    """A classes.json beside a segmentation, not isosimtf's record: not replaced without --overwrite."""
+    outdir = tmp_path / "out"
+    outdir.mkdir()
+    (outdir / "classes.json").write_text('{"labels": ["liver", "spleen"]}')
+    code, err = _run([*PHANTOM, "--no-render", "-o", outdir], capfd)
+    assert code == 2 and f"'{outdir / 'classes.json'}' was not written by isosimtf" in err
+    assert json.loads((outdir / "classes.json").read_text()) == {"labels": ["liver", "spleen"]}
+
+
+def test_a_run_killed_midway_leaves_a_folder_the_next_run_accepts(tmp_path: Path, capfd) -> None:
+    """Before: a run killed while writing left files rewritten but unrecorded, and every later run refused the
+    folder with a false "changed since isosimtf wrote it". The journal records each output as it lands."""
+    outdir = tmp_path / "out"
+    assert _run([*PHANTOM, "--no-render", "-o", outdir], capfd)[0] == 0
+    # What a killed second run leaves: one output rewritten, journaled, classes.json still the first run's.
+    rewritten = outdir / "similarity.png"
+    rewritten.write_bytes(rewritten.read_bytes() + b"\0")
+    journal = outdir / JOURNAL_FILE
+    journal.write_text(json.dumps({"name": "similarity.png", "sha256": file_stamp(rewritten)}) + "\n{cut by the ki")
+    code, err = _run([*PHANTOM, "--no-render", "-o", outdir], capfd)
+    assert code == 0, err
+    assert not journal.exists()  # classes.json records every output again
+    # Without the journal line the same folder is refused: the file changed since it was recorded.
+    rewritten.write_bytes(rewritten.read_bytes() + b"\0")
+    code, err = _run([*PHANTOM, "--no-render", "-o", outdir], capfd)
+    assert code == 2 and "has changed since isosimtf wrote it" in err
+
+
+def test_a_linked_lock_file_is_refused_and_creates_nothing(tmp_path: Path, capfd) -> None:
+    outdir = tmp_path / "out"
+    outdir.mkdir()
+    target = tmp_path / "elsewhere" / "created-by-the-lock"
+    target.parent.mkdir()
+    (outdir / LOCK_FILE).symlink_to(target)  # dangling
+    code, err = _run([*PHANTOM, "--no-render", "-o", outdir], capfd)
+    assert code == 2 and "is a symbolic link" in err and not target.exists()
+
+
+@needs_slicer
+def test_a_linked_scene_data_folder_is_never_written_through(tmp_path: Path, capfd) -> None:
+    outdir, elsewhere = tmp_path / "out", tmp_path / "elsewhere"
+    (outdir / "scene").mkdir(parents=True)
+    elsewhere.mkdir()
+    (outdir / "scene" / "Data").symlink_to(elsewhere)
+    code, err = _run([*PHANTOM, "--size", "64", "-o", outdir], capfd)
+    assert code == 2 and f"'{outdir / 'scene' / 'Data'}' is a symbolic link" in err
+    assert not list(elsewhere.iterdir())
+
+
+@needs_slicer
+def test_the_input_is_never_removed_even_when_it_is_a_previous_runs_scene_volume(tmp_path: Path, capfd) -> None:
+    """Before: re-running --no-render on the previous run's scene volume, into the same folder, deleted the input."""
+    outdir = tmp_path / "out"
+    assert _run([*PHANTOM, "--size", "64", "-o", outdir], capfd)[0] == 0
+    volume = next(p for p in (outdir / "scene" / "Data").iterdir() if p.name.endswith(".nrrd"))
+    content = volume.read_bytes()
+    code, err = _run([volume, "--no-render", "-q", "-o", outdir], capfd)
+    assert code == 0, err
+    assert volume.read_bytes() == content and "scene/scene.mrml" in err  # the rest of the scene is removed

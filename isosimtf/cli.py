@@ -159,6 +159,12 @@ def build_parser() -> argparse.ArgumentParser:
         "click: dense-parts on CT-like data, else outer-surface)",
     )
     output.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace files in OUTDIR that have an output's name but were not written by isosimtf (by default such "
+        "a run is refused; a file isosimtf wrote and someone changed since is never replaced)",
+    )
+    output.add_argument(
         "--no-render",
         action="store_true",
         help="skip render.png, classes.png and the Slicer scene (no slicer-core needed)",
@@ -247,6 +253,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             backdrop=args.backdrop,
             ray_casting=args.ray_casting,
             look=args.look,
+            overwrite=args.overwrite,
         )
     except BaseException as error:  # one line, no traceback (ISOSIMTF_DEBUG=1 shows it)
         progress.finish()

@@ -1,19 +1,26 @@
 """The output folder: checked, created and locked before any work, and only our own unchanged files replaced or
 removed.
 
-A run never deletes or replaces what it did not write, nor what it wrote but someone changed since. Each run
-records in ``classes.json`` the files it wrote (``written``) with their size and modification time
-(``written_stamps``). The next run into the folder replaces those files or, when it does not write them again (e.g.
-``render.png`` on a ``--no-render`` re-run), removes them, so that the folder never mixes two runs; a recorded file
-whose size or time changed (e.g. ``scene/scene.mrml`` saved from Slicer) is never touched: a run that would replace it
-is refused before the design, and one that would only remove it keeps it, with a warning, and keeps it recorded as
-changed. Every file is written under a temporary name in its folder and renamed into place once complete, so an
-interrupted or failed write leaves no half file; it is recorded only then. A symbolic link among the outputs is
-refused, never written through. One run at a time writes into a folder (a lock file, ``.isosimtf.lock``).
+A run never deletes or replaces what it did not write, nor what it wrote but someone changed since. A file is ours
+only when its name is one this tool writes (:func:`is_output_name`) and its content is what a run recorded when it
+wrote it: each run records in ``classes.json`` the files it wrote (``written``) with the SHA-256 of their content
+(``written_stamps``), and, while it runs, each file as it lands in a journal (``.isosimtf.journal``), so a run killed
+midway leaves a folder the next one accepts. The next run into the folder replaces those files or, when it does not
+write them again (e.g. ``render.png`` on a ``--no-render`` re-run), removes them, so that the folder never mixes two
+runs. A recorded file whose content changed (e.g. ``scene/scene.mrml`` saved from Slicer) is never touched: a run that
+would replace it is refused before the design, and one that would only remove it keeps it, with a warning, and keeps
+it recorded as changed. A file with an output's name that no run recorded (the user's own ``render.png``) is refused
+likewise, unless ``--overwrite``. The input is never removed. Every file is written under a temporary name of our own
+pattern (``.isosimtf-<pid>-<name>``) in its folder and renamed into place once complete, so an interrupted or failed
+write leaves no half file; only names of that pattern are cleaned. A symbolic link anywhere between the folder and an
+output (``scene/Data`` included), or as the lock file, is refused, never written through. One run at a time writes
+into a folder (a lock file, ``.isosimtf.lock``).
 """
 
+import hashlib
 import json
 import os
+import re
 import shutil
 import tempfile
 from collections.abc import Iterable
@@ -22,6 +29,7 @@ from pathlib import Path
 from typing import Any, Callable, Optional, Union
 
 from IsoSimilarityTFLib.errors import OutputError, RenderError, UsageError
+from IsoSimilarityTFLib.options import LOOK_NAMES
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -56,17 +64,58 @@ def check_output_path(outdir: PathLike) -> Path:
     return path
 
 
-#: Prefix of the temporary files and staging folders of a run; any left in the folder are a killed run's, removed
-#: by the next run (which holds the lock, so no other run is writing them).
+#: Prefix of the temporary files and staging folders of a run; any of our pattern left in the folder are a killed
+#: run's, removed by the next run (which holds the lock, so no other run is writing them).
 TEMPORARY_PREFIX = ".isosimtf-"
 #: The lock file: held (``flock``) by the run writing into the folder.
 LOCK_FILE = ".isosimtf.lock"
+#: The journal: each output of the running run as it lands (a JSON line: name, SHA-256); removed once classes.json
+#: records them all.
+JOURNAL_FILE = ".isosimtf.journal"
+#: Output file names, by role.
+OUTPUT_FILES = {
+    "similarity_npy": "similarity.npy",
+    "similarity_png": "similarity.png",
+    "classes_json": CLASSES_JSON,
+    "vp_json": "transfer_function.vp.json",
+    "vp": "transfer_function.vp",
+    "looks_png": "looks.png",
+    "render_png": "render.png",
+    "classes_png": "classes.png",
+    "scene": f"{SCENE_FOLDER}/scene.mrml",
+    "segmentation": "classes.seg.nrrd",
+}
+#: The files a run writes at the top of the folder.
+TOP_OUTPUTS = frozenset(name for name in OUTPUT_FILES.values() if "/" not in name)
+#: The folder of the gallery's transfer functions, one ``<name>.vp.json`` per look.
+LOOKS_FOLDER = "looks"
+# Our temporary names: a file `.isosimtf-<pid>-<output file name>`, a staging folder `.isosimtf-staging-<pid>-<any>`.
+_TEMPORARY_FILE = re.compile(re.escape(TEMPORARY_PREFIX) + r"\d+-(.+)")
+_STAGING_FOLDER = re.compile(re.escape(TEMPORARY_PREFIX) + r"staging-\d+-\w+")
 
 
-def file_stamp(path: Path) -> list[int]:
-    """``[size in bytes, modification time in ns]`` of a file: what tells that it changed since it was written."""
-    status = path.stat()
-    return [int(status.st_size), int(status.st_mtime_ns)]
+def is_output_name(name: str) -> bool:
+    """Whether ``name`` (relative to the output folder, ``/``-separated) is a file this tool writes: one of
+    :data:`TOP_OUTPUTS`, ``looks/<look>.vp.json``, ``scene/scene.mrml`` or a file of ``scene/Data/``. A record naming
+    anything else (``../x``, a user's notes) is not trusted."""
+    parts = name.split("/")
+    if any(part in ("", ".", "..") for part in parts):
+        return False
+    if len(parts) == 1:
+        return name in TOP_OUTPUTS
+    if parts[0] == LOOKS_FOLDER:
+        return len(parts) == 2 and parts[1].endswith(".vp.json") and parts[1][: -len(".vp.json")] in LOOK_NAMES
+    return parts[0] == SCENE_FOLDER and (parts[1:] == ["scene.mrml"] or (len(parts) == 3 and parts[1] == "Data"))
+
+
+def file_stamp(path: Path) -> str:
+    """The SHA-256 of a file's content, in hex: what tells that it is still the file a run wrote (a copied size and
+    time would not)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as file:
+        for block in iter(lambda: file.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
 
 
 @dataclass
@@ -75,61 +124,130 @@ class PreviousRun:
 
     Attributes:
         unchanged: files as that run wrote them (absolute paths): this run may replace or remove them.
-        changed: relative name -> recorded stamp of the files changed since (or of unknown state): never touched.
+        changed: relative name -> recorded stamp of the files changed since (or of unknown state, e.g. recorded by a
+            version that stamped size and time): never touched.
+        record_ours: whether the folder's classes.json is an isosimtf record (which each run rewrites).
     """
 
     unchanged: list[Path] = field(default_factory=list)
-    changed: dict[str, list[int]] = field(default_factory=dict)
+    changed: dict[str, Any] = field(default_factory=dict)
+    record_ours: bool = False
+
+    def ours(self, path: Path, name: str) -> bool:
+        """Whether the file ``name`` in the folder ``path`` is a previous run's, unchanged."""
+        return (path / name).resolve() in self.unchanged
 
 
 def previous_outputs(path: Path) -> PreviousRun:
-    """What a previous ``isosimtf`` run wrote into ``path``, by its classes.json (see :class:`PreviousRun`).
+    """What previous ``isosimtf`` runs wrote into ``path``: the files its classes.json records, and those the
+    journal of a run killed before recording them lists (see :class:`PreviousRun`).
 
-    A classes.json that is not ours, or unreadable, gives nothing: then nothing is removed. Runs before
-    ``written_stamps`` existed have their files taken as unchanged.
+    A classes.json that is not ours, or unreadable, records nothing: then nothing is removed. Only names this tool
+    writes are considered (:func:`is_output_name`), and a file is unchanged only when its content has the recorded
+    SHA-256.
     """
+    recorded: dict[str, Any] = {}
     try:
         document = json.loads((path / CLASSES_JSON).read_text(encoding="utf-8"))
     except (OSError, ValueError):
-        return PreviousRun()
-    if not isinstance(document, dict) or (document.get("tool") or {}).get("name") != "isosimtf":
-        return PreviousRun()
-    listed: Any = document.get("written")
-    if not isinstance(listed, list):  # runs before "written" existed list their main files in "outputs" only
-        outputs = document.get("outputs")
-        listed = list(outputs.values()) if isinstance(outputs, dict) else []
-    stamps = document.get("written_stamps")
-    previous = PreviousRun()
-    for name in listed:
-        if str(name) == CLASSES_JSON:
-            continue  # the record itself, rewritten by every run
-        candidate = path / str(name)
-        if candidate.is_symlink() or not candidate.is_file() or not candidate.resolve().is_relative_to(path):
-            continue  # gone, or not ours to touch (a link, or outside the folder)
-        recorded = stamps.get(str(name)) if isinstance(stamps, dict) else None
-        if isinstance(stamps, dict) and recorded != file_stamp(candidate):
-            previous.changed[str(name)] = recorded if isinstance(recorded, list) else []
-        else:
+        document = None
+    record_ours = isinstance(document, dict) and (document.get("tool") or {}).get("name") == "isosimtf"
+    if record_ours:
+        stamps = document.get("written_stamps")
+        listed = document.get("written")
+        for name in listed if isinstance(listed, list) else []:
+            recorded[str(name)] = stamps.get(str(name)) if isinstance(stamps, dict) else None
+    recorded.update(_journal(path))
+    previous = PreviousRun(record_ours=record_ours)
+    for name, stamp in recorded.items():
+        if name == CLASSES_JSON or not is_output_name(name):
+            continue  # the record itself, rewritten by every run; or a name we never write: not ours to touch
+        candidate = path / name
+        if _linked(path, name) or not candidate.is_file():
+            continue  # gone, or not ours to touch (through a link)
+        if isinstance(stamp, str) and stamp == file_stamp(candidate):
             previous.unchanged.append(candidate.resolve())
+        else:
+            previous.changed[name] = stamp if stamp is not None else []
     return previous
 
 
-def check_outputs(path: Path, names: Iterable[str], previous: PreviousRun, *, scene: bool) -> None:
-    """Refuse, before any work, a run that would write through a link or replace a file changed since written.
+def _journal(path: Path) -> dict[str, str]:
+    """``name -> SHA-256`` of the outputs a killed run's journal lists (its last entry per name)."""
+    journal = path / JOURNAL_FILE
+    if journal.is_symlink() or not journal.is_file():
+        return {}
+    entries = {}
+    try:
+        lines = journal.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError):
+        return {}
+    for line in lines:
+        try:
+            entry = json.loads(line)
+            entries[str(entry["name"])] = str(entry["sha256"])
+        except (ValueError, KeyError, TypeError):
+            continue  # a line cut by the kill
+    return entries
+
+
+def journal_output(path: Path, file: Path) -> None:
+    """Append ``file`` (an output just complete) with its SHA-256 to the folder's journal."""
+    entry = json.dumps({"name": file.relative_to(path).as_posix(), "sha256": file_stamp(file)})
+    flags = os.O_WRONLY | os.O_CREAT | os.O_APPEND | getattr(os, "O_NOFOLLOW", 0)
+    try:
+        descriptor = os.open(path / JOURNAL_FILE, flags, 0o644)
+        with os.fdopen(descriptor, "a", encoding="utf-8") as journal:
+            journal.write(entry + "\n")
+    except OSError as error:
+        raise OutputError(f"cannot write into '{path}': {error.strerror or error}") from None
+
+
+def end_journal(path: Path) -> None:
+    """Remove the journal: classes.json now records every output."""
+    (path / JOURNAL_FILE).unlink(missing_ok=True)
+
+
+def _linked(path: Path, name: str) -> Optional[Path]:
+    """The first symbolic link on the way from the folder ``path`` to ``name`` (itself included), or None."""
+    current = path
+    for part in name.split("/"):
+        current = current / part
+        if current.is_symlink():
+            return current
+    return None
+
+
+def check_outputs(
+    path: Path,
+    names: Iterable[str],
+    previous: PreviousRun,
+    *,
+    scene: bool,
+    overwrite: bool = False,
+    source: Optional[Path] = None,
+) -> None:
+    """Refuse, before any work, a run that would write through a link or replace a file that is not ours.
 
     Args:
         names: the outputs this run writes (relative names); scene: it also writes ``scene/`` (whose data files are
-            named only once saved: every changed file there counts).
+            named only once saved: every file there counts).
+        overwrite: replace files with an output's name that no run recorded (``--overwrite``); a recorded file
+            changed since is still refused.
+        source: the input file, never replaced.
 
     Raises:
-        UsageError: an output or ``scene/`` is a symbolic link, or a changed file would be replaced.
+        UsageError: a link on the way to an output (or ``scene/``, ``scene/Data``), a changed file or a file no run
+            recorded (without ``overwrite``) that would be replaced, or the input among the outputs.
     """
-    targets = [*names, SCENE_FOLDER] if scene else list(names)
-    for name in targets:
-        if (path / name).is_symlink():
+    names = list(names)
+    scene_names = [f"{SCENE_FOLDER}/scene.mrml", f"{SCENE_FOLDER}/Data"] if scene else []
+    for name in [*names, *scene_names]:
+        link = _linked(path, name)
+        if link is not None:
             raise UsageError(
-                f"'{path / name}' is a symbolic link (to '{os.readlink(path / name)}'): isosimtf never writes "
-                "through links; remove it or choose another -o"
+                f"'{link}' is a symbolic link (to '{os.readlink(link)}'): isosimtf never writes through links; "
+                "remove it or choose another -o"
             )
     replaced = [n for n in previous.changed if n in names or (scene and n.startswith(SCENE_FOLDER + "/"))]
     if replaced:
@@ -137,6 +255,29 @@ def check_outputs(path: Path, names: Iterable[str], previous: PreviousRun, *, sc
             f"'{path / replaced[0]}' has changed since isosimtf wrote it (e.g. saved from Slicer), and this run would "
             f"replace it{f' and {len(replaced) - 1} other changed file(s)' if len(replaced) > 1 else ''}: move it "
             "away, or choose another -o"
+        )
+    existing = [n for n in names if (path / n).is_file()]
+    if scene:
+        data = path / SCENE_FOLDER / "Data"
+        existing += [f"{SCENE_FOLDER}/scene.mrml"] if (path / SCENE_FOLDER / "scene.mrml").is_file() else []
+        existing += [f"{SCENE_FOLDER}/Data/{f.name}" for f in sorted(data.iterdir())] if data.is_dir() else []
+    if source is not None:
+        inside = [n for n in existing if (path / n).resolve() == source.resolve()]
+        if inside:
+            raise UsageError(
+                f"the input '{source}' is among this run's outputs ('{inside[0]}'): isosimtf never replaces its "
+                "input; copy it elsewhere, or choose another -o"
+            )
+    foreign = [
+        n
+        for n in existing
+        if not (previous.record_ours if n == CLASSES_JSON else previous.ours(path, n)) and n not in previous.changed
+    ]
+    if foreign and not overwrite:
+        raise UsageError(
+            f"'{path / foreign[0]}' was not written by isosimtf"
+            f"{f' (nor {len(foreign) - 1} other file(s))' if len(foreign) > 1 else ''}, and this run would replace "
+            "it: move it away, choose another -o, or pass --overwrite"
         )
 
 
@@ -159,10 +300,17 @@ class OutputFolder:
 
     def __enter__(self) -> "OutputFolder":
         missing = [p for p in (self.path, *self.path.parents) if not p.exists()]
+        lock = self.path / LOCK_FILE
+        if lock.is_symlink():
+            raise UsageError(
+                f"'{lock}' is a symbolic link (to '{os.readlink(lock)}'): isosimtf never writes through links; remove "
+                "it or choose another -o"
+            )
         try:
             self.path.mkdir(parents=True, exist_ok=True)
             self._created = missing
-            self._lock = open(self.path / LOCK_FILE, "a+b")
+            flags = os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0)
+            self._lock = os.fdopen(os.open(lock, flags, 0o644), "a+b")
         except OSError as error:
             self._remove_created()
             raise OutputError(f"cannot write into the output folder '{self.path}': {error.strerror or error}") from None
@@ -179,11 +327,14 @@ class OutputFolder:
                 raise UsageError(
                     f"another isosimtf run is writing into '{self.path}': wait for it to end, or choose another -o"
                 ) from None
-        for leftover in self.path.glob(TEMPORARY_PREFIX + "*"):
-            if leftover.is_dir() and not leftover.is_symlink():
-                shutil.rmtree(leftover, ignore_errors=True)
-            else:
-                leftover.unlink(missing_ok=True)
+        for folder in (self.path, self.path / LOOKS_FOLDER):
+            for leftover in folder.glob(TEMPORARY_PREFIX + "*") if folder.is_dir() and not folder.is_symlink() else ():
+                if leftover.is_symlink():
+                    continue
+                if leftover.is_dir() and _STAGING_FOLDER.fullmatch(leftover.name):
+                    shutil.rmtree(leftover, ignore_errors=True)
+                elif leftover.is_file() and _temporary_of_ours(leftover.name, folder == self.path):
+                    leftover.unlink(missing_ok=True)
         return self
 
     def __exit__(self, *exc_info: object) -> None:
@@ -198,6 +349,15 @@ class OutputFolder:
                 folder.rmdir()
             except OSError:  # not empty: something was written
                 return
+
+
+def _temporary_of_ours(name: str, top: bool) -> bool:
+    """Whether ``name`` is a temporary file of our pattern for an output of that folder (the top or ``looks/``)."""
+    match = _TEMPORARY_FILE.fullmatch(name)
+    if match is None:
+        return False
+    output = match.group(1)
+    return output in TOP_OUTPUTS if top else is_output_name(f"{LOOKS_FOLDER}/{output}")
 
 
 def write_atomically(path: Path, write: Callable[[Path], object]) -> None:
@@ -222,12 +382,17 @@ def write_atomically(path: Path, write: Callable[[Path], object]) -> None:
             temporary.unlink()
 
 
-def remove_stale(path: Path, previous: Iterable[Path], written: Iterable[Path]) -> list[str]:
+def remove_stale(
+    path: Path, previous: Iterable[Path], written: Iterable[Path], source: Optional[Path] = None
+) -> list[str]:
     """Remove the previous run's unchanged files that this run did not write; return their names (relative, sorted).
 
-    Folders left empty by the removal (e.g. ``scene/Data``) go too; folders still holding anything stay.
+    The input ``source`` is never removed (a previous run's scene volume read again). Folders left empty by the
+    removal (e.g. ``scene/Data``) go too; folders still holding anything stay.
     """
     kept = {p.resolve() for p in written}
+    if source is not None:
+        kept.add(Path(source).resolve())
     removed = []
     for file in sorted(set(previous) - kept):
         try:
@@ -253,7 +418,8 @@ def save_scene(scene: Any, outdir: Path) -> list[Path]:
     """
     target = outdir / SCENE_FOLDER
     written = []
-    with tempfile.TemporaryDirectory(dir=outdir, prefix=TEMPORARY_PREFIX) as staging_root:
+    staging_prefix = f"{TEMPORARY_PREFIX}staging-{os.getpid()}-"
+    with tempfile.TemporaryDirectory(dir=outdir, prefix=staging_prefix) as staging_root:
         staging = Path(staging_root) / SCENE_FOLDER
         staging.mkdir()
         if not scene.SaveSceneToSlicerDataBundleDirectory(str(staging)):

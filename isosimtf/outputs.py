@@ -25,29 +25,14 @@ from IsoSimilarityTFLib.pictures import similarity_image
 from .console import ProgressPrinter
 from .figures import class_grid, tissue_label_lines
 from .formatting import value_decimals
-from .output_folder import file_stamp, save_scene, write_atomically
+from .output_folder import LOOKS_FOLDER, OUTPUT_FILES, file_stamp, journal_output, save_scene, write_atomically
 from .read_errors import captured_native_output, first_message
 from .volume import Volume
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     from .rendering import HeadlessSlicer
 
-#: Output file names, by role.
-OUTPUT_FILES = {
-    "similarity_npy": "similarity.npy",
-    "similarity_png": "similarity.png",
-    "classes_json": "classes.json",
-    "vp_json": "transfer_function.vp.json",
-    "vp": "transfer_function.vp",
-    "looks_png": "looks.png",
-    "render_png": "render.png",
-    "classes_png": "classes.png",
-    "scene": "scene/scene.mrml",
-    "segmentation": "classes.seg.nrrd",
-}
 
-#: The folder of the gallery's transfer functions, one ``<name>.vp.json`` per look.
-LOOKS_FOLDER = "looks"
 #: Side of a thumbnail in looks.png, in pixels.
 THUMBNAIL_SIZE = 160
 DEFAULT_VIEW = "anterior"
@@ -101,6 +86,8 @@ class RunResult:
         preview: what the pictures of a volume read lazily are rendered from; None for a volume in memory.
         kept: files a previous run wrote and someone changed since, left untouched: relative name -> the stamp
             recorded then, carried into ``written_stamps`` so that later runs leave them alone too.
+        journaled: whether each output is journaled as it lands (:meth:`record`): the run's own process, not the
+            render process working on a copy.
     """
 
     design: TransferFunctionDesign
@@ -112,7 +99,21 @@ class RunResult:
     timings_s: dict[str, float] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     preview: Optional[Preview] = None
-    kept: dict[str, list[int]] = field(default_factory=dict)
+    kept: dict[str, Any] = field(default_factory=dict)
+    journaled: bool = False
+
+    def record(self, role: str, path: Path) -> None:
+        """Record an output once it is complete (and journal it, so a run killed later still knows it is ours)."""
+        self.files[role] = path
+        if self.journaled:
+            journal_output(self.outdir, path)
+
+    def record_scene(self, paths: list[Path]) -> None:
+        """Record the files of the saved scene (see :meth:`record`)."""
+        self.scene_files = list(paths)
+        if self.journaled:
+            for path in self.scene_files:
+                journal_output(self.outdir, path)
 
     @property
     def pictured(self) -> Volume:
@@ -168,7 +169,7 @@ def write_data_files(result: RunResult) -> None:
     for role, write in writers.items():
         path = outdir / OUTPUT_FILES[role]
         write_atomically(path, write)
-        result.files[role] = path  # recorded once complete
+        result.record(role, path)  # once complete
     write_looks(result)
     write_classes_json(result)
 
@@ -187,10 +188,10 @@ def write_looks(result: RunResult) -> None:
     for look in design.looks:
         path = outdir / look_file(look.name)
         write_atomically(path, lambda temporary, look=look: design.write_vp_json(temporary, look))
-        result.files[f"look_{look.name}"] = path
+        result.record(f"look_{look.name}", path)
     path = outdir / OUTPUT_FILES["looks_png"]
     write_atomically(path, lambda temporary: write_png(looks_picture(design), temporary))
-    result.files["looks_png"] = path
+    result.record("looks_png", path)
 
 
 def looks_picture(design: TransferFunctionDesign, size: int = THUMBNAIL_SIZE) -> np.ndarray:
@@ -283,7 +284,7 @@ def render_outputs(
         path = outdir / OUTPUT_FILES["classes_png"]
         grid = _tissue_grid(headless, property_node, design, tissues, progress)
         write_atomically(path, lambda temporary: write_png(grid, temporary))
-        result.files["classes_png"] = path
+        result.record("classes_png", path)
 
     if progress is not None:
         progress.update("render.png")
@@ -291,7 +292,7 @@ def render_outputs(
     path = outdir / OUTPUT_FILES["render_png"]
     picture = headless.render(view=None, reset_camera=False)
     write_atomically(path, lambda temporary: write_png(picture, temporary))
-    result.files["render_png"] = path
+    result.record("render_png", path)
     if not result.full_resolution:
         return
 
@@ -301,8 +302,8 @@ def render_outputs(
 
     if progress is not None:
         progress.update("scene")
-    result.scene_files = save_scene(headless.scene, outdir)
-    result.files["scene"] = outdir / OUTPUT_FILES["scene"]
+    result.record_scene(save_scene(headless.scene, outdir))
+    result.record("scene", outdir / OUTPUT_FILES["scene"])
 
 
 def _tissue_grid(
@@ -361,4 +362,4 @@ def write_segmentation(result: RunResult, headless, volume_node) -> None:
         for added in (storage, node.GetDisplayNode(), node):
             if added is not None:
                 headless.scene.RemoveNode(added)
-    result.files["segmentation"] = path
+    result.record("segmentation", path)

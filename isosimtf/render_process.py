@@ -60,7 +60,10 @@ class RenderProcess:
             RenderError: the child failed (its one-line reason) or ended without a word.
         """
         # The pictured volume stands in for the input: a lazy one would be read whole by the child.
-        job = result if result.preview is None else replace(result, volume=result.preview.volume)
+        # The parent journals what the child reports, the child's copy does not.
+        job = replace(result, journaled=False)
+        if result.preview is not None:
+            job = replace(job, volume=result.preview.volume)
         try:
             _send(self._process.stdin, (job, view, size))
             while True:
@@ -68,10 +71,10 @@ class RenderProcess:
                 if reply[0] == _PROGRESS and progress is not None:
                     progress.update(reply[1])
                 elif reply[0] == _WROTE:  # recorded at once: an interrupted run still lists every complete picture
-                    result.files[reply[1]] = reply[2]
+                    result.record(reply[1], reply[2])
                 elif reply[0] == _DONE:
                     result.files.update(reply[1])
-                    result.scene_files = reply[2]
+                    result.record_scene(reply[2])
                     return
                 elif reply[0] == _FAILED:
                     raise RenderError(reply[1])

@@ -20,13 +20,20 @@ from IsoSimilarityTFLib.value_range import with_robust_range
 from .chunked_readers import preview_step, read_preview
 from .console import ProgressPrinter
 from .inputs import DEFAULT_PHANTOM_SIZE, PathLike, input_info, load_input
-from .output_folder import OutputFolder, PreviousRun, check_output_path, check_outputs, previous_outputs, remove_stale
+from .output_folder import (
+    OutputFolder,
+    PreviousRun,
+    check_output_path,
+    check_outputs,
+    end_journal,
+    previous_outputs,
+    remove_stale,
+)
 from .outputs import (
     DEFAULT_BACKDROP,
     DEFAULT_RAY_CASTING,
     DEFAULT_SIZE,
     DEFAULT_VIEW,
-    LOOKS_FOLDER,
     MAX_SIZE,
     MIN_SIZE,
     OUTPUT_FILES,
@@ -90,6 +97,7 @@ def run(
     backdrop: str = DEFAULT_BACKDROP,
     ray_casting: str = DEFAULT_RAY_CASTING,
     look: Optional[str] = None,
+    overwrite: bool = False,
 ) -> RunResult:
     """Read ``source``, design its transfer function and fill ``outdir``.
 
@@ -115,6 +123,8 @@ def run(
         ray_casting: "cpu" (default, reproducible) or "gpu" (see ``RAY_CASTING``).
         look: the look of the gallery the transfer function shows (one of ``LOOK_NAMES``; None: the first click's).
             A look the data do not support is refused once the design is made, before anything is written.
+        overwrite: replace files with an output's name that no run of isosimtf recorded (a file a run wrote and
+            someone changed since is still refused).
 
     Raises:
         UsageError, VolumeReadError, ValueError: bad output path, input or option (a usage or input error), another
@@ -167,8 +177,9 @@ def run(
     with OutputFolder(path):
         previous = previous_outputs(path)
         names = [OUTPUT_FILES[role] for role in (RENDER_ROLES if render else DATA_ROLES)]
-        names += [LOOKS_FOLDER, *(look_file(name) for name in LOOK_NAMES)]
-        check_outputs(path, names, previous, scene=render)
+        names += [look_file(name) for name in LOOK_NAMES]
+        input_file = Path(source) if Path(source).is_file() else None
+        check_outputs(path, names, previous, scene=render, overwrite=overwrite, source=input_file)
         return _run_locked(
             source,
             path,
@@ -185,6 +196,7 @@ def run(
             backdrop=backdrop,
             ray_casting=ray_casting,
             look=look,
+            input_file=input_file,
         )
 
 
@@ -205,6 +217,7 @@ def _run_locked(
     backdrop: str,
     ray_casting: str,
     look: Optional[str],
+    input_file: Optional[Path],
 ) -> RunResult:
     """:func:`run` once the output folder is checked and locked: read, design, write, render."""
     # The pictures are made by a second process, started now so that its slow start overlaps reading and designing.
@@ -232,7 +245,7 @@ def _run_locked(
             raise UsageError(f"--look {look} is not offered for this volume; its looks: {', '.join(offered)}")
         design.use_look(look or offered[0])
         timings.update(design.timings_s)
-        result = RunResult(design, volume, info, path, timings_s=timings, warnings=warnings)
+        result = RunResult(design, volume, info, path, timings_s=timings, warnings=warnings, journaled=True)
         for message in _design_warnings(result):
             warning(message)
 
@@ -250,7 +263,7 @@ def _run_locked(
                 _render(renderer, result, step, view=view, size=size, progress=progress)
                 timings["render"] = time.perf_counter() - start
         finally:
-            removed = remove_stale(path, previous.unchanged, result.written())
+            removed = remove_stale(path, previous.unchanged, result.written(), input_file)
             if removed:
                 progress.finish()
                 names = ", ".join(removed)
@@ -265,6 +278,7 @@ def _run_locked(
             progress.finish()
             timings["total"] = time.perf_counter() - started
             write_classes_json(result)
+            end_journal(path)  # classes.json records every output now
     return result
 
 

@@ -33,11 +33,10 @@ import numpy as np
 
 from .classes import PALETTE, IsovalueClass
 from .look import BACKGROUND_GREY, bin_opacity_of, default_look
+from .options import LOOK_NAMES
 from .roles import RULES, LookRules, class_roles
 from .visibility import Preview, visibility_histogram
 
-#: Every look the gallery can offer, in the order it offers them after the first click.
-LOOK_NAMES = ("dense-parts", "outer-surface", "see-through", "thin-structures", "all-tissues", "classes")
 # The visibility step stops within this of the light it aims to keep (its last round's measure, float32 sums).
 _KEPT_TOLERANCE = 0.01
 # Rounds of clearing what lies in front of the dense parts (each sets the factor from the measured transmittance).
