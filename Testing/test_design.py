@@ -256,3 +256,83 @@ def test_python_api_takes_what_a_user_types_or_says_why(phantom):
         design.set_class(1, visible="no")
     design.set_class(1, visible=False)
     assert not design.classes[1].visible
+
+
+# Design texts read back: checked as the API checks its arguments (issue 26) -----------------------------------------
+
+
+def _edited(design, edit) -> str:
+    document = design.to_dict()
+    edit(document)
+    return json.dumps(document)
+
+
+def _set(path, value):
+    def edit(document):
+        target = document
+        for key in path[:-1]:
+            target = target[key]
+        target[path[-1]] = value
+
+    return edit
+
+
+@pytest.mark.parametrize(
+    "path, value, reason",
+    [
+        (("classes", 1, "opacity"), 7.0, "opacity must be in"),
+        (("classes", 1, "color"), [0.5, 5.0, 0.5], "color must be three numbers"),
+        (("classes", 1, "visible"), "no", "visible must be true or false"),
+        (("tissues", 0, "visible"), 1, "visible must be true or false"),
+        (("tissues", 0, "opacity"), -0.5, "opacity must be in"),
+        (("classes", 1, "voxels"), -4, "voxel counts cannot be negative"),
+        (("value_range",), [100.0, -100.0], "low < high"),
+        (("value_range",), [3.0, 3.0], "low < high"),
+        (("spacing",), [1.0, 0.0, 1.0], "spacing must be"),
+        (("solo_class",), 999, "no class 999"),
+        (("solo_tissue",), True, "a tissue id is an integer"),
+        (("options", "damping"), 0.1, "damping"),
+        (("kind",), "pet", "kind must be one of"),
+    ],
+)
+def test_an_invalid_design_text_is_refused_in_one_line(design, path, value, reason):
+    with pytest.raises(ValueError, match="not a valid IsoSimilarityTF design") as refused:
+        TransferFunctionDesign.from_json(_edited(design, _set(path, value)))
+    assert reason in str(refused.value) and "\n" not in str(refused.value)
+
+
+def test_the_unedited_design_text_is_accepted(design):
+    assert TransferFunctionDesign.from_json(_edited(design, lambda document: None)).to_dict() == design.to_dict()
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        '{"n_bins": NaN}',
+        '{"n_bins": 1e400}',
+        '{"n_bins": 256, "labels": [' + "2" * 30 + "]}",  # an integer beyond int64
+        "[" * 100_000 + "]" * 100_000,  # deeper than the parser's recursion
+        '"a string"',
+    ],
+)
+def test_hostile_numbers_and_nesting_are_one_line_not_a_crash(text):
+    with pytest.raises(ValueError, match="not a valid IsoSimilarityTF design"):
+        TransferFunctionDesign.from_json(text)
+
+
+def test_a_preview_that_inflates_beyond_its_shape_is_refused_without_inflating(design):
+    import base64
+    import zlib
+
+    bomb = base64.b64encode(zlib.compress(b"\0" * (1 << 28), 9)).decode()  # 256 MiB of zeros in 256 KB
+    text = _edited(design, _set(("preview", "bins"), bomb))
+    with pytest.raises(ValueError, match="the preview does not match its shape"):
+        TransferFunctionDesign.from_json(text)
+
+
+def test_a_boolean_is_no_id(design):
+    edited = TransferFunctionDesign.from_json(design.to_json())
+    with pytest.raises(KeyError, match="a tissue id is an integer"):
+        edited.set_tissue(True, opacity=0.5)
+    with pytest.raises(KeyError, match="a class id is an integer"):
+        edited.set_class(False, opacity=0.5)

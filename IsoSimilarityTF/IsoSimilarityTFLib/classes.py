@@ -79,10 +79,17 @@ class IsovalueClass:
             exemplar_bin=int(data["exemplar_bin"]),
             color=[float(c) for c in data["color"]],
             opacity=float(data["opacity"]),
-            visible=bool(data["visible"]),
-            background=bool(data["background"]),
+            visible=_flag(data["visible"], "visible"),
+            background=_flag(data["background"], "background"),
             background_contact=float(data.get("background_contact", 0.0)),
         )
+
+
+def _flag(value: object, name: str) -> bool:
+    """A JSON ``true`` or ``false`` (``bool("no")`` is True: a plausible wrong answer)."""
+    if not isinstance(value, bool):
+        raise ValueError(f"{name} must be true or false; got {value!r}")
+    return value
 
 
 def runs(sorted_bins: np.ndarray) -> list[tuple[int, int]]:

@@ -12,13 +12,13 @@ from typing import Callable, Optional, Union
 import numpy as np
 
 from .chunked import SlabTap, chunk_row_bytes, is_dask_array, quantize_chunked
-from .classes import IsovalueClass, build_classes, runs
+from .classes import IsovalueClass, _flag, build_classes, runs
 from .clustering import FALLBACK_DAMPINGS, cluster_isovalues, unconverged_advice
 from .errors import ClusteringError
-from .gallery import LOOK_NAMES, GalleryLook, LookContext, check_look, first_look_name, gallery, make_look
+from .gallery import GalleryLook, LookContext, check_look, first_look_name, gallery, make_look
 from .look import bin_opacity_of, class_mean_values, detect_kind, gradient_ramp_top
 from .memory import check_memory
-from .options import DEFAULT_OPTIONS, check_options
+from .options import DEFAULT_OPTIONS, KINDS, LOOK_NAMES, OPTIONS, check_options
 from .quantize import Quantization, quantize
 from .similarity import isovalue_similarity
 from .thumbnails import render_thumbnail
@@ -31,7 +31,7 @@ from .transfer_function import (
     write_vp,
     write_vp_json,
 )
-from .visibility import Preview, enclosure, preview_bins, preview_steps
+from .visibility import PREVIEW_VOXELS, Preview, enclosure, preview_bins, preview_steps
 
 StageProgress = Callable[[str, float, str], None]
 
@@ -89,8 +89,8 @@ class Tissue:
             value_ranges=[[float(lo), float(hi)] for lo, hi in data["value_ranges"]],
             color=[float(c) for c in data["color"]],
             opacity=float(data["opacity"]),
-            visible=bool(data["visible"]),
-            background=bool(data.get("background", False)),
+            visible=_flag(data["visible"], "visible"),
+            background=_flag(data.get("background", False), "background"),
             picture_share=None if data.get("picture_share") is None else float(data["picture_share"]),
         )
 
@@ -159,11 +159,15 @@ class TransferFunctionDesign:
         return next((c for c in self.classes if c.background), None)
 
     def class_by_id(self, class_id: int) -> IsovalueClass:
+        if isinstance(class_id, bool) or not isinstance(class_id, (int, np.integer)):
+            raise KeyError(f"a class id is an integer; got {class_id!r}")  # True would be class 1
         if not 0 <= class_id < len(self.classes):
             raise KeyError(f"no class {class_id}; classes are 0 to {len(self.classes) - 1}")
         return self.classes[class_id]
 
     def tissue_by_id(self, tissue_id: int) -> Tissue:
+        if isinstance(tissue_id, bool) or not isinstance(tissue_id, (int, np.integer)):
+            raise KeyError(f"a tissue id is an integer; got {tissue_id!r}")  # True would be tissue 1
         if not 0 <= tissue_id < len(self.tissues):
             raise KeyError(f"no tissue {tissue_id}; tissues are 0 to {len(self.tissues) - 1}")
         return self.tissues[tissue_id]
@@ -428,15 +432,20 @@ class TransferFunctionDesign:
 
     @classmethod
     def from_dict(cls, data: dict) -> "TransferFunctionDesign":
+        """The design of a ``classes.json`` document (or a scene's design text), checked as the API checks its
+        arguments: the options through their table, every colour, opacity, visibility, count, id and range.
+
+        Raises:
+            ValueError: anything missing, of the wrong type or out of range, in one line.
+        """
         try:
-            n_bins = int(data["n_bins"])
+            n_bins = int(OPTIONS["n_bins"].check(data["n_bins"]))
             labels = np.asarray(data["labels"], dtype=np.intp)
-            classes = [IsovalueClass.from_dict(c) for c in data["classes"]]
-            if labels.shape != (n_bins,) or sorted(c.id for c in classes) != list(range(len(classes))):
+            classes = sorted((IsovalueClass.from_dict(c) for c in data["classes"]), key=lambda c: c.id)
+            if labels.shape != (n_bins,) or [c.id for c in classes] != list(range(len(classes))):
                 raise ValueError("labels and classes do not match")
             if labels.size and not 0 <= labels.min() <= labels.max() < len(classes):
                 raise ValueError("a label names no class")
-            spacing = data.get("spacing")
             look_name = data.get("look")
             if look_name is not None and look_name not in LOOK_NAMES:
                 raise ValueError(f"no look {look_name!r}; looks are {', '.join(LOOK_NAMES)}")
@@ -447,38 +456,91 @@ class TransferFunctionDesign:
             members = sorted(c for t in tissues for c in t.classes)
             if members != list(range(len(classes))) or [t.id for t in tissues] != list(range(len(tissues))):
                 raise ValueError("tissues do not hold every class once")
+            for item in [*classes, *tissues]:
+                _apply_edit(item, item.color, item.opacity, item.visible)  # the checks of an edit
+                if item.voxels < 0:
+                    raise ValueError(f"voxel counts cannot be negative; got {item.voxels}")
+            if any(not 0 <= b < n_bins for c in classes for b in [*c.isovalue_bins, c.exemplar_bin]):
+                raise ValueError("a class names a bin outside 0 .. n_bins - 1")
             bin_voxels = np.asarray(data["bin_voxels"], dtype=np.int64)
-            if bin_voxels.shape != (n_bins,):
-                raise ValueError("bin_voxels must hold one count per bin")
-            return cls(
-                value_range=(float(data["value_range"][0]), float(data["value_range"][1])),
+            if bin_voxels.shape != (n_bins,) or (bin_voxels < 0).any():
+                raise ValueError("bin_voxels must hold one count per bin, none negative")
+            kind = str(data.get("kind", "mr"))
+            if kind not in KINDS:
+                raise ValueError(f"kind must be one of {KINDS}; got {kind!r}")
+            design = cls(
+                value_range=OPTIONS["value_range"].check(data["value_range"]),
                 n_bins=n_bins,
                 labels=labels,
-                classes=sorted(classes, key=lambda c: c.id),
-                options=dict(data.get("options", {})),
+                classes=classes,
+                options=_checked_options(data.get("options", {})),
                 clustering=dict(data.get("clustering", {})),
                 bin_voxels=bin_voxels,
                 hierarchy=TissueHierarchy.from_dict(data["tissue_hierarchy"]),
-                kind=str(data.get("kind", "mr")),
+                kind=kind,
                 tissues=tissues,
                 timings_s={k: float(v) for k, v in data.get("timings_s", {}).items()},
-                spacing=tuple(float(s) for s in spacing) if spacing else None,
+                spacing=_check_spacing(data.get("spacing")),
                 unit_distance=unit_distance,
                 look_name=look_name,
-                solo_class=data.get("solo_class"),
-                solo_tissue_id=data.get("solo_tissue"),
                 preview=None if data.get("preview") is None else _preview_from_dict(data["preview"], n_bins),
             )
-        except (KeyError, TypeError, ValueError, IndexError, zlib.error) as error:
-            raise ValueError(f"not a valid IsoSimilarityTF design: {error!r}") from None
+            for solo, key in ((design.solo, "solo_class"), (design.solo_tissue, "solo_tissue")):
+                if data.get(key) is not None:
+                    solo(data[key])  # the id checks of the API
+            design.solo_class, design.solo_tissue_id = data.get("solo_class"), data.get("solo_tissue")
+            return design
+        except (KeyError, TypeError, ValueError, IndexError, OverflowError, RecursionError, zlib.error) as error:
+            raise ValueError(f"not a valid IsoSimilarityTF design: {_reason(error)}") from None
 
     @classmethod
     def from_json(cls, text: str) -> "TransferFunctionDesign":
+        """The design of a JSON text (see :meth:`from_dict`); larger than :data:`MAX_DESIGN_CHARACTERS`, with NaN,
+        infinities or nesting deeper than a design's, refused in one line."""
+        if not isinstance(text, (str, bytes)) or len(text) > MAX_DESIGN_CHARACTERS:
+            raise ValueError(
+                f"not a valid IsoSimilarityTF design: not a text of at most {MAX_DESIGN_CHARACTERS} characters"
+            )
         try:
-            data = json.loads(text)
-        except json.JSONDecodeError as error:
-            raise ValueError(f"not a valid IsoSimilarityTF design: {error}") from None
+            data = json.loads(text, parse_constant=_refuse_constant, parse_float=_finite_float)
+        except (ValueError, RecursionError) as error:
+            raise ValueError(f"not a valid IsoSimilarityTF design: {_reason(error)}") from None
+        if not isinstance(data, dict):
+            raise ValueError("not a valid IsoSimilarityTF design: not a JSON object")
         return cls.from_dict(data)
+
+
+#: Largest design text read back (characters): a design of 4096 bins with its preview is about 2 MB.
+MAX_DESIGN_CHARACTERS = 32 * 2**20
+
+
+def _checked_options(options: dict) -> dict:
+    """The options of a saved design as saved (a design made by hand may hold a few), each checked by its table
+    entry."""
+    if not isinstance(options, dict):
+        raise ValueError("options must be a JSON object")
+    check_options(options)
+    return dict(options)
+
+
+def _refuse_constant(name: str) -> float:
+    raise ValueError(f"{name} is not a number a design holds")
+
+
+def _finite_float(text: str) -> float:
+    value = float(text)
+    if not np.isfinite(value):
+        raise ValueError(f"{text} is not a finite number")
+    return value
+
+
+def _reason(error: BaseException) -> str:
+    """One line for a refused design: the message, or the kind of error when it has none (a missing key)."""
+    if isinstance(error, KeyError):
+        return f"{error.args[0]!r} is missing" if error.args else "a field is missing"
+    if isinstance(error, RecursionError):
+        return "nested too deeply"
+    return str(error).splitlines()[0] if str(error) else type(error).__name__
 
 
 def _preview_to_dict(preview: Preview) -> dict:
@@ -490,10 +552,18 @@ def _preview_to_dict(preview: Preview) -> dict:
 
 def _preview_from_dict(data: dict, n_bins: int) -> Preview:
     shape = tuple(int(n) for n in data["shape"])
-    bins = np.frombuffer(zlib.decompress(base64.b64decode(data["bins"])), dtype="<u2")
-    if len(shape) != 3 or bins.size != int(np.prod(shape)) or (bins.size and int(bins.max()) >= n_bins):
-        raise ValueError("the preview does not match its shape or bins")
-    spacing = tuple(float(s) for s in data["spacing"])
+    if len(shape) != 3 or not all(0 < n <= PREVIEW_VOXELS for n in shape) or np.prod(shape) > PREVIEW_VOXELS:
+        raise ValueError("the preview's shape is not a preview's")
+    # Inflated no further than the shape announces: a small text must not expand to gigabytes.
+    expected = 2 * int(np.prod(shape))
+    inflater = zlib.decompressobj()
+    raw = inflater.decompress(base64.b64decode(data["bins"], validate=True), expected + 1)
+    if len(raw) != expected:
+        raise ValueError("the preview does not match its shape")
+    bins = np.frombuffer(raw, dtype="<u2")
+    if bins.size and int(bins.max()) >= n_bins:
+        raise ValueError("the preview names a bin outside 0 .. n_bins - 1")
+    spacing = _check_spacing(data["spacing"])
     return Preview(bins=bins.reshape(shape).astype(np.uint16), spacing=spacing, n_bins=n_bins)
 
 
