@@ -6,13 +6,7 @@ import pytest
 from IsoSimilarityTFLib import TransferFunctionDesign, design_transfer_function
 from IsoSimilarityTFLib.classes import IsovalueClass
 from IsoSimilarityTFLib.look import (
-    FRINGE_CONTACT,
-    OPACITY_HIGH,
-    OPACITY_LOW,
     RAMP,
-    REAL_SHARE,
-    SEEN,
-    TAIL_SHARE,
     default_look,
     dense_tail,
     detect_kind,
@@ -21,6 +15,7 @@ from IsoSimilarityTFLib.look import (
     ramp_colors,
     ramped_opacity,
 )
+from IsoSimilarityTFLib.roles import RULES
 from IsoSimilarityTFLib.visibility import Preview, preview_bins, preview_steps, visibility_histogram
 from isosimtf.phantom import head_phantom
 
@@ -111,14 +106,14 @@ def test_a_dense_tail_enclosed_by_the_largest_tissue_is_a_ct():
     assert detect_kind([77.0, 155.0, 206.0], [47.0, 483.0, 470.0], 7.75) == "mr"
 
 
-@pytest.mark.parametrize("above, tail", [(TAIL_SHARE * 0.99, True), (TAIL_SHARE * 1.01, False)])
+@pytest.mark.parametrize("above, tail", [(RULES.tail_share * 0.99, True), (RULES.tail_share * 1.01, False)])
 def test_a_dense_tail_holds_at_most_the_tail_share_of_the_largest_tissue(above, tail):
     # Soft tissue of 1000 voxels; the tissues above it hold `above` of that, the bone and a second dense tissue.
     voxels = [230.0, 1000.0, 1000.0 * above / 2, 1000.0 * above / 2]
     assert (dense_tail([20.0, 70.0, 140.0, 160.0], voxels, 2.6) != []) is tail
 
 
-@pytest.mark.parametrize("share, tail", [(REAL_SHARE * 1.02, True), (REAL_SHARE * 0.98, False)])
+@pytest.mark.parametrize("share, tail", [(RULES.real_share * 1.02, True), (RULES.real_share * 0.98, False)])
 def test_a_tissue_of_the_dense_tail_is_real(share, tail):
     # The dense tissue holds `share` of all the voxels of the tissues.
     others = 1230.0
@@ -126,7 +121,7 @@ def test_a_tissue_of_the_dense_tail_is_real(share, tail):
     assert (dense_tail([20.0, 70.0, 140.0], [230.0, 1000.0, dense], 2.6) == [2]) is tail
 
 
-@pytest.mark.parametrize("contact, shown", [(FRINGE_CONTACT - 0.01, True), (FRINGE_CONTACT + 0.01, False)])
+@pytest.mark.parametrize("contact, shown", [(RULES.rim_contact - 0.01, True), (RULES.rim_contact + 0.01, False)])
 def test_a_tissue_most_of_whose_voxels_touch_the_background_starts_hidden(contact, shown):
     classes = make_classes([10_000, 1000, 3000], contact=[1.0, contact, 0.0])
     look = default_look(classes, np.arange(3), np.array([0.0, 20.0, 40.0]), "mr", noise_sd=1.0)
@@ -158,16 +153,16 @@ def test_an_enclosed_dense_tissue_is_seen_through_the_tissue_around_it():
     preview = Preview(shell_volume(), (1.0, 1.0, 1.0), 40)
     start = shell_look(None)  # the monotone start: the soft shell is opaque and hides the core
     look = shell_look(preview)
-    assert start.opacities[10] == OPACITY_LOW and start.opacities[30] == OPACITY_HIGH
-    assert look.opacities[30] >= OPACITY_HIGH and look.opacities[10] < start.opacities[10]
+    assert start.opacities[10] == RULES.opacity_low and start.opacities[30] == RULES.opacity_high
+    assert look.opacities[30] >= RULES.opacity_high and look.opacities[10] < start.opacities[10]
     core = [visibility_histogram(preview, np.array(o))[20:].sum() for o in (start.opacities, look.opacities)]
     assert core[1] > core[0]
     shares = look.tissue_shares
     assert shares.sum() == pytest.approx(1.0) and shares[0] == 0.0
-    # The core keeps at least SEEN of the light it gives alone.
+    # The core keeps at least RULES.seen of the light it gives alone.
     opacity = np.array(look.opacities)
     alone = visibility_histogram(preview, np.where(np.arange(40) >= 20, opacity, 0.0))[20:].sum()
-    assert visibility_histogram(preview, opacity)[20:].sum() >= 0.95 * SEEN * alone
+    assert visibility_histogram(preview, opacity)[20:].sum() >= 0.95 * RULES.seen * alone
     # Its partial volume ramps in from 4 noise widths above the soft tissue (bin 14) to the core (bin 20).
     assert look.opacities[13] == look.opacities[10] < look.opacities[16] < look.opacities[19] < look.opacities[20]
 
@@ -176,7 +171,7 @@ def test_a_fog_class_next_to_the_background_stays_clear():
     # Noise in the air: a class just above the background, touching little of it (it is everywhere in the air).
     classes = make_classes([5000, 400, 3000, 800], contact=[1.0, 0.3, 0.0, 0.0])
     tissue_of = np.arange(4)
-    means = np.array([0.0, 2.0, 20.0, 40.0])  # the fog 2 noise widths from the air, under SEPARATION
+    means = np.array([0.0, 2.0, 20.0, 40.0])  # the fog 2 noise widths from the air, under RULES.fog_separation
     labels = np.repeat(np.arange(4), 10)
     bins = np.random.default_rng(0).integers(0, 40, (12, 12, 12))
     look = default_look(classes, tissue_of, means, "mr", labels=labels, class_bins=means, noise_sd=1.0,
@@ -191,12 +186,12 @@ def test_on_uncalibrated_data_the_outer_tissue_is_a_surface_and_the_top_of_the_r
     bins[40:80, 40:80, 40:80] = shell_volume()
     preview = Preview(bins, (1.0, 1.0, 1.0), 40)
     look = shell_look(preview, kind="mr")
-    assert look.opacities[30] == OPACITY_HIGH  # the monotone ramp reaches its top
-    assert look.opacities[10] > OPACITY_LOW  # the enclosing tissue made a surface where it lies
+    assert look.opacities[30] == RULES.opacity_high  # the monotone ramp reaches its top
+    assert look.opacities[10] > RULES.opacity_low  # the enclosing tissue made a surface where it lies
     assert look.tissue_shares[1] > 0.9
     # In the tight field of view the same shell already is a surface at the start: nothing to raise.
     tight = shell_look(Preview(shell_volume(), (1.0, 1.0, 1.0), 40), kind="mr")
-    assert tight.opacities[10] == OPACITY_LOW and tight.tissue_shares[1] > 0.9
+    assert tight.opacities[10] == RULES.opacity_low and tight.tissue_shares[1] > 0.9
 
 
 def test_tissue_colours_follow_intensity_and_are_shared_by_their_classes():
@@ -299,7 +294,7 @@ def test_soft_tissue_on_a_ct_is_no_veil(storages):
     soft = next(c for c in design.classes if any(lo <= 60 < hi for lo, hi in c.value_ranges))
     assert design.is_shown(soft.id) and soft.opacity <= 0.02  # per mm: 2 cm of it lets 2/3 of the light through
     skull = next(c for c in design.classes if any(lo <= 1000 < hi for lo, hi in c.value_ranges))
-    assert skull.opacity >= OPACITY_HIGH
+    assert skull.opacity >= RULES.opacity_high
 
 
 def test_regrouping_runs_the_step_again_and_survives_json(storages):
@@ -409,7 +404,7 @@ def test_max_classes_counts_classes_in_whole_tissues():
 # A fringe tissue's core ----------------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("top_contact, split", [(FRINGE_CONTACT - 0.01, True), (FRINGE_CONTACT + 0.01, False)])
+@pytest.mark.parametrize("top_contact, split", [(RULES.rim_contact - 0.01, True), (RULES.rim_contact + 0.01, False)])
 def test_a_fringe_tissues_core_is_a_tissue_of_its_own(top_contact, split):
     # Tissue 1 is a fringe (most of its voxels touch the background): its top class is its core when it does not.
     contact = np.array([1.0, 0.9, 0.8, top_contact, 0.0])

@@ -9,16 +9,18 @@ the same tissues, the same opacities and the same picture.
 1. **Which tissues are shown.** Not the background, not a tissue most of whose voxels touch it (noise in the air,
    the partial-volume rim: fog); of the others, whole tissues, the largest first, while they hold at most
    ``max_classes`` classes; and the densest real tissue always.
-2. **A monotone start**, as every Slicer preset: opacity per mm rises with intensity, from ``OPACITY_LOW`` for the
-   lowest shown tissue to ``OPACITY_HIGH`` for the densest, linear in their rank.
-3. **An enclosing tissue never hides a distinct one inside it.** A *feature* is a real tissue (``REAL_SHARE``) that
-   stands apart from a lower tissue: their means differ by at least ``SEPARATION`` noise widths of the intensity
-   model (bone, contrast-filled vessels, a micro-CT's dense parts over soft tissue or a sample holder; not white
-   matter over grey matter, whose histograms overlap). Rendered alone, a feature shows some light; rendered with
-   the lower tissues it stands apart from, at least ``SEEN`` of that light must still reach the eye. Where it does
-   not, those tissues are made clearer, by the factor the measured transmittance asks for (``T ** s = SEEN``), and
-   the picture is rendered again: Ma & Entezari's loop, which raises the least visible feature until it is seen,
-   turned round, since a feature is already at the top of the ramp.
+2. **A monotone start**, as every Slicer preset: opacity per mm rises with intensity, from
+   :attr:`.LookRules.opacity_low` for the lowest shown tissue to :attr:`.LookRules.opacity_high` for the densest,
+   linear in their rank.
+3. **An enclosing tissue never hides a distinct one inside it.** A *feature* is a real tissue
+   (:attr:`.LookRules.real_share`) that stands apart from a lower tissue: their means differ by at least
+   :attr:`.LookRules.dense_separation` noise widths of the intensity model (bone, contrast-filled vessels, a micro-CT's
+   dense parts over soft tissue or a sample holder; not white matter over grey matter, whose histograms overlap).
+   Rendered alone, a feature shows some light; rendered with the lower tissues it stands apart from, at least
+   :attr:`.LookRules.seen` of that light must still reach the eye. Where it does not, those tissues are made clearer,
+   by the factor the measured transmittance asks for (``T ** s = seen``), and the picture is rendered again: Ma &
+   Entezari's loop, which raises the least visible feature until it is seen, turned round, since a feature is already
+   at the top of the ramp.
 4. **Soft boundaries** (:func:`ramped_opacity`): opacity climbs across a step between two bins over the noise width
    of the intensity model, on the side of the more opaque bin, so the voxel staircase of a coarse volume is not
    drawn as black contour lines and hidden bins stay hidden.
@@ -26,8 +28,8 @@ the same tissues, the same opacities and the same picture.
 Colours follow one ramp ordered by intensity (dark red -> tan -> ivory -> white), placed by mean value between the
 lowest shown tissue and the densest real one: one colour per tissue, so neighbouring classes never read as rainbow
 rings; on CT (``kind`` ``"ct"``) each class at its own mean, continuous as in the CT presets. White is kept for a
-densest tissue that is a tail (at most ``TAIL_SHARE`` of the largest tissue's voxels: bone, contrast): a large
-bright tissue (white matter) ends at ivory, or the headlight washes it out. The qualitative palette stays
+densest tissue that is a tail (at most :attr:`.LookRules.white_share` of the largest tissue's voxels: bone, contrast):
+a large bright tissue (white matter) ends at ivory, or the headlight washes it out. The qualitative palette stays
 available (``colors="distinct"``).
 
 Gradient opacity (option ``gradient_opacity="auto"``; ``"off"`` by default) scales opacity by the local gradient: 0
@@ -54,24 +56,8 @@ RAMP = (
 )
 #: Where a large bright tissue's colour ends: ivory (see the module notes).
 IVORY_PLACE = 0.75
-#: Opacity per mm of the lowest and of the densest shown tissue before the visibility step: a tissue at the top is
-#: opaque within 2-3 mm (a surface), one at the bottom lets half the light through 3.5 cm (a haze you see through).
-OPACITY_LOW, OPACITY_HIGH = RULES.opacity_low, RULES.opacity_high
-#: A class or tissue with at least this share of the non-background voxels is a real tissue, not stray voxels.
-REAL_SHARE = RULES.real_share
-#: Two tissues whose means lie this many noise widths apart overlap by under 2.5 % (two Gaussians: the 1-sided tail
-#: beyond 2 sd): they are different materials, not two shades of one.
-SEPARATION = 4.0
-#: A dense tail holds at most this share of the largest tissue's voxels (bone is 5-25 % of a CT's soft tissue; the
-#: tissues above a T1's or a skull-stripped brain's largest one hold 50-100 % of it).
-TAIL_SHARE = 1 / 3
-#: Share of a feature's own light that must still reach the eye through the tissues it stands apart from: what the
-#: eye reads as "seen through a veil" rather than "behind it".
-SEEN = RULES.seen
 #: Rounds of the visibility step; each sets the clearing factor from the transmittance measured, so 4 suffice.
 VISIBILITY_ROUNDS = 4
-# A class most of whose voxels touch the background is noise in it or the rim around objects.
-FRINGE_CONTACT = RULES.rim_contact
 BACKGROUND_GREY = [0.5, 0.5, 0.5]
 
 
@@ -87,9 +73,9 @@ def detect_kind(
     Rule: a modality given by the caller (from the file: DICOM Modality, a NIfTI intent, the user) wins: ``CT`` ->
     ``"ct"``, ``MR``/``MRI`` -> ``"mr"``, or a word of :data:`KINDS`. Otherwise the data decides, whatever its units
     and storage: a CT has air (the background), soft tissue (the largest tissue) and a dense tail enclosed by it: the
-    tissues above the largest hold at most :data:`TAIL_SHARE` of its voxels, and one of them is real, lies
-    :data:`SEPARATION` noise widths above the largest one and is met after it by most rays through both (bone
-    inside the head; not the scalp fat of a T1, which lies around the brain).
+    tissues above the largest hold at most :attr:`.LookRules.tail_share` of its voxels, and one of them is real, lies
+    :attr:`.LookRules.dense_separation` noise widths above the largest one and is met after it by most rays through
+    both (bone inside the head; not the scalp fat of a T1, which lies around the brain).
 
     Args:
         tissue_means: mean bin of each non-background tissue, ascending.
@@ -123,10 +109,12 @@ def dense_tail(
     if means.size < 2:
         return []
     largest = int(np.argmax(voxels))
-    if voxels[largest + 1 :].sum() > TAIL_SHARE * voxels[largest]:
+    if voxels[largest + 1 :].sum() > RULES.tail_share * voxels[largest]:
         return []  # brighter tissues as large as the main one (white matter, a T1's fat and brain): no tail
-    real = voxels >= REAL_SHARE * voxels.sum()
-    candidates = np.flatnonzero(real & (means >= means[largest] + SEPARATION * noise_sd) & (voxels < voxels[largest]))
+    real = voxels >= RULES.real_share * voxels.sum()
+    candidates = np.flatnonzero(
+        real & (means >= means[largest] + RULES.dense_separation * noise_sd) & (voxels < voxels[largest])
+    )
     return [int(t) for t in candidates if encloses is None or encloses(largest, int(t)) > 0.5]
 
 
@@ -256,14 +244,14 @@ def default_look(
     inner = [
         t
         for t in foreground
-        if tissue_contact[t] <= FRINGE_CONTACT and tissue_bin[t] - background_bin >= SEPARATION * noise_sd
+        if tissue_contact[t] <= RULES.rim_contact and tissue_bin[t] - background_bin >= RULES.fog_separation * noise_sd
     ] or foreground
     classes_in = np.bincount(tissue_of_class, minlength=n_tissues)
     shown: set[int] = set()
     for t in sorted(inner, key=lambda t: (-tissue_voxels[t], t)):
         if sum(classes_in[s] for s in shown) + classes_in[t] <= max_classes:
             shown.add(t)
-    real = [t for t in foreground if share[t] >= REAL_SHARE]
+    real = [t for t in foreground if share[t] >= RULES.real_share]
     if real:
         shown.add(max(real, key=lambda t: tissue_bin[t]))
     shown_sorted = sorted(shown, key=lambda t: tissue_bin[t])
@@ -272,14 +260,14 @@ def default_look(
     tissue_opacity = np.zeros(n_tissues)
     for rank, t in enumerate(shown_sorted):
         place = rank / (len(shown_sorted) - 1) if len(shown_sorted) > 1 else 1.0
-        tissue_opacity[t] = OPACITY_LOW + (OPACITY_HIGH - OPACITY_LOW) * place
+        tissue_opacity[t] = RULES.opacity_low + (RULES.opacity_high - RULES.opacity_low) * place
     for t in foreground:
         if t not in shown:
-            tissue_opacity[t] = OPACITY_LOW  # what a user who shows it starts from
+            tissue_opacity[t] = RULES.opacity_low  # what a user who shows it starts from
     shares = None
     if preview is not None and labels is not None and shown_sorted:
         step = _VisibilityStep(preview, labels, tissue_of_class, shown_sorted, tissue_bin, noise_sd)
-        real_shown = [t for t in shown_sorted if share[t] >= REAL_SHARE]
+        real_shown = [t for t in shown_sorted if share[t] >= RULES.real_share]
         if kind == "ct":
             ordered = np.array(foreground)
             dense = dense_tail(
@@ -307,7 +295,7 @@ def default_look(
         top = max(real, key=lambda t: tissue_bin[t]) if real else anchors[-1]
         high = tissue_value[top]
         largest = max(anchors, key=lambda t: tissue_voxels[t])
-        tail = top != largest and tissue_voxels[top] <= TAIL_SHARE * tissue_voxels[largest]
+        tail = top != largest and tissue_voxels[top] <= RULES.white_share * tissue_voxels[largest]
         end = 1.0 if tail or len(anchors) == 1 else IVORY_PLACE
 
         def ramp_at(value: float) -> list[float]:
@@ -339,7 +327,7 @@ def fringe_cores_apart(
     tissue_of_class: np.ndarray, contact: np.ndarray, voxels: np.ndarray, is_background: np.ndarray
 ) -> np.ndarray:
     """``(n_classes,)`` the tissue of each class as the look decides it: a fringe tissue (more than
-    :data:`FRINGE_CONTACT` of its voxels touch the background) whose densest classes do not touch it is two, its
+    :attr:`.LookRules.rim_contact` of its voxels touch the background) whose densest classes do not touch it is two, its
     fringe and that core, so the core's classes are shown while the fringe is cleared (the partial volume of small
     vessels and branches falls into the lowest tissue, with the rim of the larger ones). Ids stay in intensity
     order.
@@ -353,10 +341,10 @@ def fringe_cores_apart(
     for tissue in range(int(tissue_of_class.max()) + 1 if tissue_of_class.size else 0):
         members = np.flatnonzero(tissue_of_class == tissue)
         weight = voxels[members].sum()
-        fringe = weight > 0 and (voxels[members] * contact[members]).sum() / weight > FRINGE_CONTACT
+        fringe = weight > 0 and (voxels[members] * contact[members]).sum() / weight > RULES.rim_contact
         first_core = members.size
         if fringe and not is_background[members].any():
-            while first_core > 0 and contact[members[first_core - 1]] <= FRINGE_CONTACT:
+            while first_core > 0 and contact[members[first_core - 1]] <= RULES.rim_contact:
                 first_core -= 1
         if 0 < first_core < members.size:
             out[members[:first_core]], out[members[first_core:]] = next_id, next_id + 1
@@ -368,8 +356,8 @@ def fringe_cores_apart(
 
 
 def _follow_real(opacity: np.ndarray, shown: list[int], real: list[int]) -> np.ndarray:
-    """A shown tissue below ``REAL_SHARE`` takes the opacity of the nearest real tissue below it (the lowest real
-    one when none is below): a few stray voxels never stand out, nor vanish."""
+    """A shown tissue below :attr:`.LookRules.real_share` takes the opacity of the nearest real tissue below it (the
+    lowest real one when none is below): a few stray voxels never stand out, nor vanish."""
     if not real:
         return opacity
     opacity = opacity.copy()
@@ -459,33 +447,37 @@ class _VisibilityStep:
         return light / total if total > 0 else light
 
     def make_seen(self, opacity: np.ndarray, tissue: int) -> np.ndarray:
-        """Raise a tissue's opacity until, rendered alone, it gives ``SEEN`` of the light of the rays that cross it
-        (a surface where it lies). Its visibility is about ``1 - (1 - a) ** L`` for an effective thickness ``L``,
-        which gives the opacity asked; never lowered."""
+        """Raise a tissue's opacity until, rendered alone, it gives :attr:`.LookRules.seen` of the light of the rays
+        that cross it (a surface where it lies). Its visibility is about ``1 - (1 - a) ** L`` for an effective
+        thickness ``L``, which gives the opacity asked; never lowered."""
         opacity = opacity.copy()
         alone = np.where(np.arange(self.n_tissues) == tissue, opacity, 0.0)
         seen = self.light(alone)[tissue] / max(self.rays[tissue], 1)
-        if 0 < seen < SEEN and opacity[tissue] > 0:
+        if 0 < seen < RULES.seen and opacity[tissue] > 0:
             thickness = np.log1p(-seen) / np.log1p(-opacity[tissue])
-            opacity[tissue] = min(1.0, -np.expm1(np.log1p(-SEEN) / thickness))
+            opacity[tissue] = min(1.0, -np.expm1(np.log1p(-RULES.seen) / thickness))
         return opacity
 
     def show_features(self, opacity: np.ndarray, features: list[int]) -> np.ndarray:
         """CT-like data: every feature (a tissue of the dense tail) is a surface where it lies, its partial volume
-        is ramped in (from where the tissue below it ends, ``SEPARATION`` noise widths above that tissue's mean, the
-        opacity of a voxel follows the share of the feature it holds, linear between the two tissues' means: a thin
-        bone blurred below the feature's range is still drawn, a soft-tissue voxel raised by noise is not), and the
-        tissues below it that stand apart from it keep at least ``SEEN`` of its light (the enclosing soft tissue is
-        cleared)."""
+        is ramped in (from where the tissue below it ends, :attr:`.LookRules.ramp_start` noise widths above that
+        tissue's mean, the opacity of a voxel follows the share of the feature it holds, linear between the two
+        tissues' means: a thin bone blurred below the feature's range is still drawn, a soft-tissue voxel raised by
+        noise is not), and the tissues below it that stand apart from it keep at least :attr:`.LookRules.seen` of its
+        light (the enclosing soft tissue is cleared)."""
         shown = np.flatnonzero(self.shown)
         apart = {}
         for f in features:
             opacity = self.make_seen(opacity, f)
-            lower = [int(o) for o in shown if self.tissue_bin[f] - self.tissue_bin[o] >= SEPARATION * self.noise_sd]
+            lower = [
+                int(o)
+                for o in shown
+                if self.tissue_bin[f] - self.tissue_bin[o] >= RULES.dense_separation * self.noise_sd
+            ]
             if lower:
                 apart[f] = lower
                 below = max(lower, key=lambda o: self.tissue_bin[o])
-                start = int(np.ceil(self.tissue_bin[below] + SEPARATION * self.noise_sd))
+                start = int(np.ceil(self.tissue_bin[below] + RULES.ramp_start * self.noise_sd))
                 self.ramps.append((start, below, f))
         alone = {}
         for f, lower in apart.items():
@@ -497,9 +489,9 @@ class _VisibilityStep:
             factor = np.ones(self.n_tissues)
             for f, lower in apart.items():
                 kept = light[f] / alone[f] if alone[f] > 0 else 1.0
-                if kept < SEEN:
+                if kept < RULES.seen:
                     # The lower tissues' transmittance T in front of f: scaling their opacity by s gives about T ** s.
-                    factor[lower] = np.minimum(factor[lower], np.log(SEEN) / np.log(max(kept, 1e-12)))
+                    factor[lower] = np.minimum(factor[lower], np.log(RULES.seen) / np.log(max(kept, 1e-12)))
             if np.all(factor >= 1.0):
                 break
             opacity = opacity * factor

@@ -37,8 +37,16 @@ class LookRules:
             few stray voxels (which never decide what is dense, nor become the most opaque thing in view).
         fog_separation: a class whose mean lies within this many noise widths (of the intensity model, in bins)
             of the background's mean is noise in the background: two Gaussians 4 sd apart overlap by under 2.5 %.
-        dense_separation: a real tissue this many noise widths above the largest tissue is a different, denser
-            material (bone over soft tissue), not a brighter shade of the same one (white over grey matter).
+        dense_separation: a real tissue this many noise widths above another is a different, denser material (bone
+            over soft tissue), not a brighter shade of the same one (white over grey matter): it decides the dense
+            classes, a CT's dense tail and which tissues a feature is seen through.
+        ramp_start: a feature's partial volume starts this many noise widths above the mean of the tissue below it
+            (where that tissue's noise ends: its one-sided 2.5 % tail lies beyond 2 sd, and 4 sd leaves 3e-5).
+        tail_share: a CT's dense tail holds at most this share of the largest tissue's voxels (bone is 5-25 % of a
+            CT's soft tissue; the tissues above a T1's or a skull-stripped brain's largest one hold 50-100 % of it).
+        white_share: the ramp's white end is kept for a densest tissue holding at most this share of the largest
+            one's voxels (bone, contrast); a large bright tissue (white matter) ends at ivory, or the headlight washes
+            it out.
         rim_contact: a class more than this share of whose voxels touch the background lies on its fringe.
         seen: the share of its own light (rendered alone) that a structure a look shows through others must keep:
             what the eye reads as "seen through a veil" rather than "behind it".
@@ -57,6 +65,9 @@ class LookRules:
     real_share: float = 0.01
     fog_separation: float = 4.0
     dense_separation: float = 4.0
+    ramp_start: float = 4.0
+    tail_share: float = 1 / 3
+    white_share: float = 1 / 3
     rim_contact: float = 0.5
     seen: float = 0.8
     dense_share: float = 0.5
