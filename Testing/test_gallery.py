@@ -189,3 +189,28 @@ def test_check_look_finds_fog_shown_and_the_densest_tissue_hidden_and_a_falling_
     assert any("densest real tissue" in failure for failure in check_look(context, hidden))
     background = dataclasses.replace(look, visible=[True, True, True])
     assert any("background or fog shown" in failure for failure in check_look(context, background))
+
+
+# Every look of the panel keeps its promise (the oracle) -------------------------------------------------------------
+
+
+def _panel_volume(name):
+    from isosimtf.volume_io import read_volume, real_dataset_path
+
+    if name == "phantom":
+        phantom = head_phantom(96, seed=4)
+        return phantom.values, phantom.spacing
+    path = real_dataset_path(name)
+    if path is None:
+        pytest.skip(f"real dataset {name!r} not installed (Debian packages invesalius-examples, mricron-data)")
+    volume = read_volume(path)
+    return np.asarray(volume.values), volume.spacing
+
+
+@pytest.mark.parametrize("name", ["phantom", "head-ct", "brain-mri", "brain-stripped"])
+def test_every_look_of_the_gallery_keeps_its_promise(name):
+    values, spacing = _panel_volume(name)
+    design = design_transfer_function(values, spacing)
+    assert len(design.looks) >= 3
+    for look in design.looks:
+        assert design.check_look(look.name) == [], look.name

@@ -138,6 +138,24 @@ def test_scene_saved_and_reopened_keeps_tf_and_design(tmp_path, slicer_app, phan
     save_and_reopen(slicer_app.scene, tmp_path / "bundle", check)
 
 
+def test_a_saved_scene_restores_the_chosen_look(tmp_path, slicer_app, phantom, phantom_design):
+    volume = add_phantom(slicer_app, phantom)
+    design = type(phantom_design).from_json(phantom_design.to_json())
+    chosen = design.looks[-1].name  # not the first click
+    design.use_look(chosen)
+    apply_design(volume, design, slicer_app.volume_rendering_logic)
+
+    def check(reopened):
+        restored = design_of(design_node_of(reopened.scene.GetFirstNodeByName("Head")))
+        assert restored.look_name == chosen
+        assert [c.to_dict() for c in restored.classes] == [c.to_dict() for c in design.classes]
+        restored.regroup(restored.options["tissues"])  # the Detail slider remakes the chosen look, not the first
+        assert restored.look_name == chosen
+        assert np.array_equal(restored.transfer_function().opacity, design.transfer_function().opacity)
+
+    save_and_reopen(slicer_app.scene, tmp_path / "bundle", check)
+
+
 def test_closing_the_scene_mid_way_gives_a_clear_error(slicer_app, phantom, phantom_design):
     volume = add_phantom(slicer_app, phantom)
     slicer_app.render()
