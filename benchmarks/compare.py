@@ -27,7 +27,8 @@ backdrop). On the phantom, per tissue: share of the picture and visibility (``ti
 casting available, each transfer function is also rendered once by the GPU ray caster with VTK's messages captured,
 to record whether it triggers the lookup-table fallback warning.
 
-Outputs in ``benchmarks/results/``: ``compare-<volume>.png`` (rows = views, columns = looks, labelled),
+Outputs in ``benchmarks/results/``: ``pictures/compare-<volume>.png`` (rows = views, columns = looks, labelled; the
+pictures folder is not committed: regenerated pictures would grow the repository at every run),
 ``compare.md`` and ``compare.json``. ``--backdrop slicer`` renders on Slicer's blue gradient instead (outputs named
 ``compare-slicer*``, ``compare-<volume>-slicer.png``): good for looking, but the metrics then mix translucent haze
 with the light backdrop (a hazy transfer function looks brighter), so the committed numbers use black.
@@ -69,6 +70,8 @@ from volume_panel import HEAD_CT, PANEL, PanelVolume, ct_storage  # noqa: E402
 
 REPO = HERE.parent
 RESULTS = HERE / "results"
+#: Regenerated pictures: written here, never committed (see .gitignore).
+PICTURES = RESULTS / "pictures"
 VIEWS = ("anterior", "left")
 OURS = "ours"
 FIRST_CLICK = "first click"
@@ -360,8 +363,8 @@ def run_case(case: PanelVolume, presets: PresetsSource, size: int, gpu: bool, ba
         columns = [(look.name, look.title) for look in looks]
         empty = headless.backdrop()
     metrics = {key: picture_metrics(picture, empty) for key, picture in pictures.items()}
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    montage_path = RESULTS / f"compare-{case.key}{'' if backdrop == 'black' else '-' + backdrop}.png"
+    PICTURES.mkdir(parents=True, exist_ok=True)
+    montage_path = PICTURES / f"compare-{case.key}{'' if backdrop == 'black' else '-' + backdrop}.png"
     shares = {
         (view, name): sum(tissue_stats[view][name][t]["share"] for t in case.shown_for)
         for view in VIEWS

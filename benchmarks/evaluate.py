@@ -553,8 +553,10 @@ def main(argv: list[str] | None = None) -> int:
 
     args.out.mkdir(parents=True, exist_ok=True)
     stem = "evaluation-quick" if quick else "evaluation"
-    plot_sweeps(noise_rows, blur_rows, args.out / f"{stem}-robustness.png")
-    plot_tissues(main_rows, TISSUES, args.out / f"{stem}-tissues.png")
+    # Regenerated pictures go to an uncommitted folder (see .gitignore); docs/ keeps the ones a reader sees.
+    (args.out / "pictures").mkdir(parents=True, exist_ok=True)
+    plot_sweeps(noise_rows, blur_rows, args.out / "pictures" / f"{stem}-robustness.png")
+    plot_tissues(main_rows, TISSUES, args.out / "pictures" / f"{stem}-tissues.png")
 
     import IsoSimilarityTFLib
 
@@ -624,7 +626,7 @@ def main(argv: list[str] | None = None) -> int:
                 for r in real_records
             ],
         ),
-        f"\n\nPlots: `{stem}-robustness.png`, `{stem}-tissues.png`.\n",
+        f"\n\nPlots (not committed): `pictures/{stem}-robustness.png`, `pictures/{stem}-tissues.png`.\n",
         "\n## Tissues against labelled volumes (V-measure)\n",
         *tissue_notes,
         tissue_report(tissue_records),
