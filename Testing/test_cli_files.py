@@ -298,3 +298,21 @@ def test_the_input_is_never_removed_even_when_it_is_a_previous_runs_scene_volume
     code, err = _run([volume, "--no-render", "-q", "-o", outdir], capfd)
     assert code == 0, err
     assert volume.read_bytes() == content and "scene/scene.mrml" in err  # the rest of the scene is removed
+
+
+def test_an_output_path_through_a_loop_of_links_is_one_line(tmp_path: Path, capfd) -> None:
+    (tmp_path / "loop").symlink_to(tmp_path / "loop")
+    code, err = _run([*PHANTOM, "--no-render", "-o", tmp_path / "loop" / "out"], capfd)
+    assert code == 2 and err.count("\n") == 1 and "cannot be resolved" in err and "Traceback" not in err
+
+
+def test_a_closed_stdout_loses_only_the_summary(tmp_path: Path) -> None:
+    """Before: `isosimtf ... >&-` ended with a traceback and exit 1 after writing every output."""
+    import os
+    import subprocess
+    import sys
+
+    argv = [sys.executable, "-m", "isosimtf", *PHANTOM, "--no-render", "-o", str(tmp_path / "out")]
+    done = subprocess.run(argv, stderr=subprocess.PIPE, text=True, preexec_fn=lambda: os.close(1), timeout=300)
+    assert done.returncode == 0 and done.stderr == "", done.stderr
+    assert (tmp_path / "out" / "transfer_function.vp.json").is_file()

@@ -266,9 +266,20 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             raise
         _print_error(_message(error))
         return _exit_status(error)
-    sys.stdout.write(summary_text(result))
-    sys.stdout.flush()
+    _write_summary(summary_text(result))
     return EXIT_OK
+
+
+def _write_summary(text: str) -> None:
+    """The summary on stdout; a closed stdout (``>&-``) or a reader gone (``| head``) loses only the summary: the
+    outputs are written, and the run succeeded."""
+    if sys.stdout is None:
+        return
+    try:
+        sys.stdout.write(text)
+        sys.stdout.flush()
+    except (BrokenPipeError, ValueError, OSError):
+        pass
 
 
 def _exit_status(error: BaseException) -> int:
@@ -312,8 +323,12 @@ def console_main() -> NoReturn:
     VTK and slicer-core, a last garbage collection) took 0.5 s of a 2 s run.
     """
     code = main()
-    sys.stdout.flush()
-    sys.stderr.flush()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            if stream is not None:
+                stream.flush()
+        except (BrokenPipeError, ValueError, OSError):
+            pass
     os._exit(code)
 
 

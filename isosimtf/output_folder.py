@@ -51,7 +51,10 @@ def check_output_path(outdir: PathLike) -> Path:
     text = os.fspath(outdir)
     if not text.strip():
         raise UsageError("the output folder is empty: name a folder (e.g. -o out; -o . for the current folder)")
-    path = Path(text).expanduser().resolve()
+    try:
+        path = Path(text).expanduser().resolve()
+    except (RuntimeError, OSError) as error:  # a loop of symbolic links (RuntimeError before Python 3.13)
+        raise UsageError(f"the output path '{text}' cannot be resolved: {error}") from None
     if len(str(path)) > MAX_OUTDIR_CHARACTERS:
         raise UsageError(
             f"the output folder path has {len(str(path))} characters; at most {MAX_OUTDIR_CHARACTERS} are accepted "
