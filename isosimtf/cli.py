@@ -134,15 +134,16 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=(
             "Outputs: similarity.npy, similarity.png, classes.json, transfer_function.vp.json, transfer_function.vp "
             "(the chosen look), looks/NAME.vp.json (every look offered), looks.png, and unless --no-render: "
-            "render.png, classes.png, scene/scene.mrml. Exit status: 0 success, 2 usage or "
+            "render.png, classes.png, classes.seg.nrrd, scene/scene.mrml. Exit status: 0 success, 2 usage or "
             "input error, 1 processing error (including a volume too large for memory), 130 interrupted."
         ),
     )
     parser.add_argument(
         "input",
         metavar="INPUT",
-        help="volume file (.nrrd, .nhdr, .mha, .mhd, .nii, .nii.gz, .vti, .npy, .inv3), a DICOM series folder or a "
-        "file of the series, or the word 'phantom' for the built-in head phantom (./phantom for a file of that name)",
+        help="volume file (.nrrd, .nhdr, .mha, .mhd, .nii, .nii.gz, .vti, .npy, .inv3, .tif, .tiff), a DICOM series "
+        "folder or a file of the series, a Zarr or OME-Zarr store or a folder of TIFF planes (read lazily), or the "
+        "word 'phantom' for the built-in head phantom (./phantom for a file of that name)",
     )
     parser.add_argument("-o", "--output", metavar="OUTDIR", required=True, help="output folder (created if missing)")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
@@ -167,7 +168,8 @@ def build_parser() -> argparse.ArgumentParser:
     output.add_argument(
         "--no-render",
         action="store_true",
-        help="skip render.png, classes.png and the Slicer scene (no slicer-core needed)",
+        help="skip render.png, classes.png, classes.seg.nrrd and the Slicer scene (faster; the data files and looks.png "
+        "are still written)",
     )
     output.add_argument(
         "--view",

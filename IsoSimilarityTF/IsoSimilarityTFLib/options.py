@@ -127,8 +127,9 @@ OPTIONS: dict[str, Option] = {
                maximum=100_000, metavar="N"),
         Option("convergence_iter", 15, "int", "stable iterations that mean convergence", "--convergence-iter",
                minimum=1, maximum=10_000, metavar="N"),
-        Option("max_classes", 15, "int", "classes shown besides the background (whole tissues, largest first)",
-               "--max-classes", minimum=0, maximum=1000, metavar="N"),
+        Option("max_classes", 15, "int", "classes shown besides the background, whole tissues, largest first; the "
+               "densest real tissue is shown even past it (0: that tissue alone)", "--max-classes", minimum=0,
+               maximum=1000, metavar="N"),
         Option("background", "largest", "choice", "which class is the hidden background", "--background",
                choices=BACKGROUND_RULES),
         Option("unconverged", "raise-damping", "choice", "what to do when affinity propagation does not converge",
