@@ -168,8 +168,8 @@ def build_parser() -> argparse.ArgumentParser:
     output.add_argument(
         "--no-render",
         action="store_true",
-        help="skip render.png, classes.png, classes.seg.nrrd and the Slicer scene (faster; the data files and looks.png "
-        "are still written)",
+        help="skip render.png, classes.png, classes.seg.nrrd and the Slicer scene (faster; the data files and "
+        "looks.png are still written)",
     )
     output.add_argument(
         "--view",
