@@ -295,3 +295,32 @@ def test_first_click_is_what_slicers_logic_recommends(tmp_path, dtype, high, pic
     boxes = [rendering.content_box(picture) for picture in pictures.values() if picture.any()]
     # One camera, framed onto the union of the looks: the largest content nearly fills the picture.
     assert max(max(b[1] - b[0], b[3] - b[2]) + 1 for b in boxes) >= 0.8 * 64
+
+
+def test_the_best_look_of_the_gallery_joins_the_columns_when_it_beats_the_first_click(tmp_path):
+    rendering = pytest.importorskip("isosimtf.rendering")
+    if not rendering.slicer_core_available():
+        pytest.skip("slicer-core is not installed")
+    compare = _load("compare")
+    values = _blob(np.int16, 400)
+    shell = (values > 0) & (values < 200)  # the outer, dimmer part of the blob
+    labels = np.where(shell, 1, np.where(values >= 200, 2, 0))
+    names = ("air", "shell", "core")
+    with rendering.HeadlessSlicer(size=(64, 64), presets_file=_logic_presets(tmp_path)) as headless:
+        volume_node = headless.add_volume(values)
+        looks = compare.prepare_looks(headless, volume_node, values, (1.0, 1.0, 1.0), ("Steep",))
+        design = looks[0].design
+        first = design.transfer_function().opacity.copy()
+        added = []
+        for shown_for in (("shell",), ("core",)):
+            before = len(looks)
+            best = compare.add_best_look(headless, volume_node, looks, values, labels, names, shown_for)
+            if best is None:  # the first click shows most of it already
+                assert len(looks) == before
+            else:
+                assert looks[-1].name == compare.BEST_LOOK and best in looks[-1].title
+                assert best != (design.look_name or design.looks[0].name)
+                added.append(best)
+            assert np.array_equal(design.transfer_function().opacity, first)  # the first click is left shown
+        assert added  # the blob's shell is better shown by another look than the first click (outer-surface)
+        assert compare.add_best_look(headless, volume_node, looks, values, None, None, ("shell",)) is None

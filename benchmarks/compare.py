@@ -10,6 +10,8 @@ scalp; the skull-stripped Colin27) and each view (anterior, left), one headless 
 volume rendering logic with Slicer's presets.xml loaded, CPU ray casting, black backdrop) renders:
 
 - **ours**: ``design_transfer_function(values, spacing)`` with its defaults, shown through ``mrml.apply_design``;
+- **ours, best look**: where the volume has labels, the look of our gallery whose picture shows most of what the
+  user scanned for (``add_best_look``), when it is not the first click;
 - **Slicer's first click**: the property ``vtkSlicerVolumeRenderingLogic::CreateDefaultVolumeRenderingNodes``
   gives a new volume: ``UpdateDisplayNodeFromVolumeNode`` (a ramp from the volume's window/level), then
   ``SetRecommendedVolumeRenderingProperties``, which copies a preset unchanged: "US-Fetal" for 8-bit data, else
@@ -75,6 +77,8 @@ PICTURES = RESULTS / "pictures"
 VIEWS = ("anterior", "left")
 OURS = "ours"
 FIRST_CLICK = "first click"
+#: The look of our gallery that shows most of what the user scanned for, where it is not the first click.
+BEST_LOOK = "best look"
 
 #: The issue's targets, against the best-suited preset of each volume and view.
 MAX_NOISE_RATIO = 1.3
@@ -184,6 +188,41 @@ def prepare_looks(
             map_property(node.GetVolumeProperty(), *storage)
         looks.append(Look(name, f"{name} (mapped)" if mapped else name, node))
     return looks
+
+
+def add_best_look(
+    headless: Any,
+    volume_node: Any,
+    looks: list[Look],
+    values: np.ndarray,
+    labels: np.ndarray | None,
+    names: Sequence[str] | None,
+    shown_for: Sequence[str],
+) -> str | None:
+    """Append the look of our gallery whose picture shows most of ``shown_for`` (the library's visibility
+    histogram, as ``look_panel.py`` measures it) as its own property node, unless it is the first click; return its
+    name (None without labels or when the first click is best)."""
+    from look_panel import label_fractions, picture_shares
+
+    design = looks[0].design  # type: ignore[attr-defined]
+    if labels is None or not names or not shown_for:
+        return None
+    fractions = label_fractions(values, labels, len(names), design)
+    first = design.look_name or design.looks[0].name
+    shown = {}
+    for look in design.looks:
+        design.use_look(look.name)
+        shares = picture_shares(design, fractions)[1]
+        shown[look.name] = sum(float(shares[list(names).index(n)]) for n in shown_for)
+    design.use_look(first)
+    best = max(design.looks, key=lambda look: shown[look.name])
+    if shown[best.name] <= shown[first] + 1e-9:
+        return None
+    node = headless.scene.AddNewNodeByClass("vtkMRMLVolumePropertyNode", f"{volume_node.GetName()} {best.name}")
+    node.GetVolumeProperty().DeepCopy(design.volume_property(best))
+    node.SetEffectiveRange(*design.value_range)
+    looks.append(Look(BEST_LOOK, f"ours, {best.name}", node))
+    return best.name
 
 
 def map_property(volume_property: Any, slope: float, offset: float) -> None:
@@ -349,6 +388,7 @@ def run_case(case: PanelVolume, presets: PresetsSource, size: int, gpu: bool, ba
     with HeadlessSlicer(size=(size, size), presets_file=presets.path, background=background) as headless:
         volume_node = headless.add_volume(values, name=case.key, ijk_to_ras=ijk_to_ras)
         looks = prepare_looks(headless, volume_node, values, spacing, suited, storage)
+        best_look = add_best_look(headless, volume_node, looks, values, labels, tissues, case.shown_for)
         for view in VIEWS:
             for name, picture in render_view(headless, volume_node, looks, view, size).items():
                 pictures[(view, name)] = picture
@@ -394,6 +434,7 @@ def run_case(case: PanelVolume, presets: PresetsSource, size: int, gpu: bool, ba
         "spacing": list(spacing),
         "first_click_preset": picked,
         "best_preset": best,
+        "best_look": best_look,
         "looks": [{"name": n, "title": t} for n, t in columns],
         "design": {
             "n_classes": len(design.classes),
