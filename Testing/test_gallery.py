@@ -214,3 +214,38 @@ def test_every_look_of_the_gallery_keeps_its_promise(name):
     assert len(design.looks) >= 3
     for look in design.looks:
         assert design.check_look(look.name) == [], look.name
+
+
+# The first click for thin structures alone --------------------------------------------------------------------------
+
+
+def thin_context(rim_voxels, core_voxels, background_voxels):
+    """Background (bin 0), a rim class touching it (bin 20), a core class that does not (bin 60)."""
+    from IsoSimilarityTFLib.gallery import LookContext
+
+    classes = make_classes([background_voxels, rim_voxels, core_voxels], contact=[1.0, 0.9, 0.1])
+    bins = np.array([0.0, 20.0, 60.0])
+    return LookContext.build(
+        classes=classes, tissue_of_class=np.array([0, 1, 2]), class_values=bins, class_bins=bins,
+        labels=np.repeat(np.arange(3), [10, 30, 40]), noise_sd=1.0, preview=None, kind="mr",
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("rim_share, thin", [(RULES.thin_rim_share - 0.01, False), (RULES.thin_rim_share + 0.01, True)])
+def test_mostly_rim_objects_in_an_empty_volume_start_as_thin_structures(rim_share, thin):
+    from IsoSimilarityTFLib.gallery import first_look_name
+
+    objects = 1000
+    context = thin_context(round(rim_share * objects), objects - round(rim_share * objects), 100_000)
+    assert first_look_name(context) == ("thin-structures" if thin else "outer-surface")
+
+
+@pytest.mark.parametrize(
+    "foreground, thin", [(RULES.thin_foreground * 0.98, True), (RULES.thin_foreground * 1.02, False)]
+)
+def test_thin_structures_start_only_when_they_fill_little_of_the_volume(foreground, thin):
+    from IsoSimilarityTFLib.gallery import is_thin
+
+    objects = 10_000
+    background = round(objects / foreground) - objects
+    assert is_thin(thin_context(8000, 2000, background)) is thin

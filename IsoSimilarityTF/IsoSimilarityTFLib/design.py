@@ -272,8 +272,8 @@ class TransferFunctionDesign:
         colours, opacities and visibility, made again from the classes (see :mod:`.gallery`)."""
         self._gallery = None
         context = self._context = self.look_context()
-        name = self.look_name or first_look_name(self.kind)
-        look = make_look(name, context) or make_look(first_look_name(self.kind), context)
+        first = first_look_name(context)
+        look = make_look(self.look_name or first, context) or make_look(first, context)
         self._apply(look)
 
     # Looks ---------------------------------------------------------------------------------------------------------

@@ -8,7 +8,7 @@ switching recomputes nothing. Each look decides from the class roles (:mod:`.rol
 =================== ======================================================== ======================================
 name                what it shows                                            offered when
 =================== ======================================================== ======================================
-``dense-parts``     the dense parts inside, the bulk around them cleared     a class is ``dense``
+``dense-parts``     the dense parts inside, the bulk around them cleared     a class is ``dense`` (always on CT)
                     (bone of a CT, the parts of an engine)
 ``outer-surface``   the tissue met first as a surface (the skin of a head,   always
                     a brain's cortex: MR-Default's look)
@@ -19,10 +19,11 @@ name                what it shows                                            off
 ``classes``         one palette colour per class (the thesis)                two classes or more
 =================== ======================================================== ======================================
 
-The first click is ``dense-parts`` on CT-like data (:func:`.look.detect_kind`), else ``outer-surface``; a look whose
-transfer function equals an earlier one is left out. Each look states its *promise*, the share of the picture some
-roles give (measured by the visibility histogram of :mod:`.visibility`); :func:`check_look` measures it again with
-an independent ray caster (:func:`.thumbnails.ray_visibility`).
+The first click is ``thin-structures`` for thin structures alone in an empty field of view (:func:`is_thin`: a
+vessel tree exported with 95-99 % zeros), else ``dense-parts`` on CT-like data (:func:`.look.detect_kind`), else
+``outer-surface``; a look whose transfer function equals an earlier one is left out. Each look states its
+*promise*, the share of the picture some roles give (measured by the visibility histogram of :mod:`.visibility`);
+:func:`check_look` measures it again with an independent ray caster (:func:`.thumbnails.ray_visibility`).
 """
 
 from collections.abc import Sequence
@@ -151,16 +152,33 @@ class GalleryLook:
         )
 
 
-def first_look_name(kind: str) -> str:
-    """The first click's look for a kind of volume."""
-    return "dense-parts" if kind == "ct" else "outer-surface"
+def first_look_name(context: LookContext) -> str:
+    """The first click's look: ``thin-structures`` for thin structures alone in an empty field of view (a vessel tree
+    exported with 95-99 % zeros: most of the objects' voxels are rim, and they fill at most
+    :attr:`.LookRules.thin_foreground` of the volume), else ``dense-parts`` on CT-like data and ``outer-surface``."""
+    if is_thin(context):
+        return "thin-structures"
+    return "dense-parts" if context.kind == "ct" else "outer-surface"
+
+
+def is_thin(context: LookContext) -> bool:
+    """Whether the volume holds thin structures alone: :attr:`.LookRules.thin_rim_share` of the non-background,
+    non-fog voxels are rim, and those voxels are at most :attr:`.LookRules.thin_foreground` of all."""
+    voxels = np.array([c.voxels for c in context.classes], dtype=np.float64)
+    foreground = ~context.of_role("background", "fog")
+    total = voxels.sum()
+    objects = voxels[foreground].sum()
+    if total <= 0 or objects <= 0:
+        return False
+    rim = voxels[context.of_role("rim")].sum()
+    return bool(rim >= context.rules.thin_rim_share * objects and objects <= context.rules.thin_foreground * total)
 
 
 def gallery(context: LookContext) -> list[GalleryLook]:
     """Every look the data support, the first click first, no two with the same transfer function. A look is
     supported where its roles exist and, measured on the preview, it keeps its promised shares (the first click is
     always offered)."""
-    first = first_look_name(context.kind)
+    first = first_look_name(context)
     looks: list[GalleryLook] = []
     for name in (first, *(n for n in LOOK_NAMES if n != first)):
         look = make_look(name, context)

@@ -55,6 +55,11 @@ class LookRules:
         surface_share: the *outer surface* look promises that the tissue met first gives at least this share.
         see_through: the *see-through* look keeps the enclosing bulk at this share of the picture, ``(low, high)``:
             enough to place the parts inside, little enough to see them.
+        thin_rim_share: thin structures: at least this share of the objects' voxels are rim (touch the background):
+            a one-voxel skin over a cylinder of radius r voxels holds about 2 / r of it, so objects a few voxels
+            thick, as the small vessels of an angiogram.
+        thin_foreground: ... and the objects fill at most this share of the volume: the vessel trees exported with
+            95-99 % zeros that a first click must show whole (not a head whose soft tissue was clipped away).
         thin_opacity: opacity per unit distance of the lowest rim class in the *thin structures* look: a structure
             one voxel thick (a voxel is about one unit distance, see :attr:`.visibility.Preview.unit_distance`)
             must stop half the light to be seen at all.
@@ -73,6 +78,8 @@ class LookRules:
     dense_share: float = 0.5
     surface_share: float = 0.5
     see_through: tuple[float, float] = (0.2, 0.4)
+    thin_rim_share: float = 0.5
+    thin_foreground: float = 0.05
     thin_opacity: float = 0.5
     opacity_low: float = 0.02
     opacity_high: float = 0.5
