@@ -24,6 +24,7 @@ along each axis, at most :data:`PREVIEW_VOXELS` voxels.
 Optional dependencies (the ``outofcore`` extra): ``dask[array]``, plus ``zarr`` and ``tifffile`` for their formats.
 """
 
+import os
 import re
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Optional
@@ -33,7 +34,7 @@ import numpy as np
 from IsoSimilarityTFLib.memory import available_memory_bytes, design_memory_bytes
 
 from .headers import RAW_HEADER_SUFFIXES, StoredVoxels, stored_voxels
-from .read_errors import cannot_read
+from .read_errors import cannot_read, regular_file
 from .volume import Volume, right_handed
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -249,6 +250,7 @@ def _zarr_volume(path: Path) -> tuple[Any, tuple[float, float, float]]:
     import dask.array as da
     import zarr
 
+    _check_store_files(path)
     node = zarr.open(str(path), mode="r")
     scale = [1.0, 1.0, 1.0]
     if isinstance(node, zarr.Group):
@@ -268,6 +270,20 @@ def _zarr_volume(path: Path) -> tuple[Any, tuple[float, float, float]]:
         values = values[0]
     _check_3d(path, values.shape)
     return values, (scale[2], scale[1], scale[0])
+
+
+def _check_store_files(store: Path) -> None:
+    """Refuse a Zarr store holding anything but regular files and folders (links followed), before zarr opens any:
+    it opens chunks by name, and a chunk that is a FIFO waits forever, one linked to ``/dev/zero`` never ends."""
+    seen = set()
+    for folder, subfolders, files in os.walk(store, followlinks=True):
+        real = os.path.realpath(folder)
+        if real in seen:  # a link back to a folder already walked
+            subfolders.clear()
+            continue
+        seen.add(real)
+        for name in files:
+            regular_file(store, Path(folder) / name, "its file")
 
 
 def _natural_key(path: Path) -> list:
@@ -304,7 +320,7 @@ def _tiff_volume(path: Path) -> Any:
     import zarr
 
     if path.is_dir():
-        files = _tiff_files(path)
+        files = [regular_file(path, file, "its TIFF plane") for file in _tiff_files(path)]
         first = _tiff_plane(path, files[0])
         for file in files[1:]:
             plane = _tiff_plane(path, file)
@@ -316,6 +332,7 @@ def _tiff_volume(path: Path) -> Any:
                 )
         store = tifffile.TiffSequence(files).aszarr()
     else:
+        _check_tiff_pages(path)
         store = tifffile.imread(path, aszarr=True)
     values = da.from_zarr(zarr.open(store, mode="r"))
     _check_3d(path, values.shape)
@@ -337,6 +354,31 @@ def _tiff_plane(folder: Path, file: Path) -> tuple[tuple[int, ...], str]:
             folder, f"{file.name} holds {pages} page(s) of shape {shape}: a folder stack needs one 2-D plane a file"
         )
     return shape, dtype
+
+
+def _check_tiff_pages(path: Path) -> None:
+    """Refuse a multi-page TIFF file whose pages differ in size or type, or form several series: tifffile reads its
+    first series only, a part of the file that would pass for the whole volume."""
+    import tifffile
+
+    try:
+        with tifffile.TiffFile(path) as tiff:
+            pages = [(page.shape, page.dtype) for page in tiff.pages]
+            series = len(tiff.series)
+    except (tifffile.TiffFileError, OSError, ValueError) as error:
+        raise cannot_read(path, f"not a readable TIFF file ({error})") from None
+    other = next((n for n, page in enumerate(pages) if page != pages[0]), None)
+    if other is not None:
+        (shape, dtype), (other_shape, other_dtype) = pages[0], pages[other]
+        raise cannot_read(
+            path,
+            f"its TIFF pages differ: page 1 is {shape} of {dtype}, page {other + 1} is {other_shape} of {other_dtype}; "
+            "every page of the stack needs one size and type",
+        )
+    if series > 1:
+        raise cannot_read(
+            path, f"its TIFF pages form {series} separate images (series), of which one would be read: save one stack"
+        )
 
 
 def _check_3d(path: Path, shape: tuple[int, ...]) -> None:

@@ -10,9 +10,13 @@ Fields honoured, as Slicer's ITK readers (teem for NRRD, MetaIO for MetaImage) h
 voxels end the file); MetaImage ``NDims``, ``DimSize``, ``ElementType``, ``ElementNumberOfChannels``,
 ``ElementByteOrderMSB`` / ``BinaryDataByteOrderMSB``, ``CompressedData``, ``CompressedDataSize``, ``HeaderSize``
 (-1: the voxels end the file) and ``ElementDataFile`` (``LOCAL`` or one file). Header lines may end in CRLF.
+
+Every data file a header names (one, a ``LIST`` or a numbered pattern, :func:`check_data_files`) is checked to be a
+regular file before any reader opens it.
 """
 
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
@@ -21,10 +25,12 @@ import numpy as np
 
 from IsoSimilarityTFLib.errors import VolumeReadError
 
-from .read_errors import cannot_read
+from .read_errors import cannot_read, regular_file
 
 #: Bytes of a header read at most: a header longer than this is not one we parse (Slicer's reader decides alone).
 MAX_HEADER_BYTES = 1 << 16
+#: Bytes of a data file name read at most (PATH_MAX): a longer line of a LIST is read in parts, each one missing.
+_MAX_NAME_BYTES = 4096
 #: The suffixes of the formats this module parses: NRRD (attached or detached header) and MetaImage.
 NRRD_SUFFIXES = (".nrrd", ".nhdr")
 METAIMAGE_SUFFIXES = (".mha", ".mhd")
@@ -67,6 +73,10 @@ class StoredVoxels:
         offset: bytes before the first voxel in :attr:`data` when raw, else None.
         stored_bytes: bytes on disk holding the voxels (header and data file), the bound a deflate stream cannot
             exceed by more than about 1032 times; None when unknown (bzip2).
+        size_mismatch: why the voxels cannot be read, found in the storage fields, for the reader to say once it
+            has accepted the volume's size (a header announcing more voxels than the file holds says more): a
+            compressed MetaImage whose ``CompressedDataSize`` is not the size of its compressed voxels (MetaIO
+            inflates exactly that many bytes: fewer give voxels of garbage, more a failed read). None: nothing.
     """
 
     data: Path
@@ -75,6 +85,7 @@ class StoredVoxels:
     raw: bool
     offset: Optional[int]
     stored_bytes: Optional[int]
+    size_mismatch: Optional[str] = None
 
     @property
     def nbytes(self) -> int:
@@ -89,8 +100,9 @@ def stored_voxels(path: Path) -> Optional[StoredVoxels]:
     unknown type, a malformed field): Slicer's reader then decides alone, and nothing is read lazily.
 
     Raises:
-        VolumeReadError: the detached data file is missing; a compressed MetaImage without ``CompressedDataSize``
-            in its own file (ITK's reader then reads the wrong bytes); the voxels lie before the header's end.
+        VolumeReadError: the detached data file is missing or not a regular file; a compressed MetaImage without
+            ``CompressedDataSize`` in its own file (ITK's reader then reads the wrong bytes); the voxels lie before
+            the header's end.
     """
     lower = path.name.lower()
     if not lower.endswith(RAW_HEADER_SUFFIXES):
@@ -121,9 +133,80 @@ def _lines(head: bytes) -> list[tuple[str, int]]:
 
 def _data_file(path: Path, name: str) -> Path:
     data = path.parent / name
-    if not data.is_file():
+    if not data.exists():
         raise cannot_read(path, f"its data file '{data}' does not exist (the header names it; keep the two together)")
-    return data
+    return regular_file(path, data, "its data file")
+
+
+def check_data_files(path: Path) -> None:
+    """Refuse a NRRD or MetaImage header naming a data file that is missing or not a regular file (a FIFO, a device,
+    a link to one), before Slicer's reader opens it (it would wait or read forever).
+
+    The data files are named as teem and MetaIO read them, relative to the header's folder: one file; ``LIST`` (NRRD
+    ``data file: LIST [subdim]``, MetaImage ``ElementDataFile = LIST [2D]``), one name a line from the next line to
+    the end of the header file; or a pattern ``name%03d.raw first last step [subdim]``.
+
+    Raises:
+        VolumeReadError: a named data file is missing or not a regular file.
+    """
+    for name in _named_data_files(path):
+        _data_file(path, name)
+
+
+def _named_data_files(path: Path) -> Iterator[str]:
+    """The names of the detached data files a NRRD or MetaImage header gives (none for other files, or voxels in the
+    header's own file), one at a time: a pattern may number more files than exist, and the first missing one ends
+    the check."""
+    lower = path.name.lower()
+    if not lower.endswith(RAW_HEADER_SUFFIXES):
+        return
+    nrrd = lower.endswith(NRRD_SUFFIXES)
+    with open(path, "rb") as handle:
+        head = handle.read(MAX_HEADER_BYTES)
+    if len(head) < MAX_HEADER_BYTES:
+        head += b"\n"  # the whole header: its last line counts even without an end (MetaIO reads it)
+    field = _data_file_field(head, nrrd)
+    if field is None:
+        return
+    value, end = field
+    words = value.split()
+    if not words or (not nrrd and words[0].upper() == "LOCAL"):
+        return
+    if words[0].upper() == "LIST":
+        with open(path, "rb") as handle:
+            handle.seek(end)
+            for line in iter(lambda: handle.readline(_MAX_NAME_BYTES), b""):  # a line without end is not held whole
+                name = line.decode("latin-1").strip()
+                if name:
+                    yield name
+        return
+    numbers = [int(w) for w in words[1:4] if w.lstrip("-").isdigit()]
+    if "%" not in words[0] or len(numbers) != 3:
+        yield value.strip()  # one file (its name may hold spaces)
+        return
+    first, last, step = numbers
+    if step == 0:
+        return  # not a pattern the readers accept: Slicer's reader says so
+    for number in range(first, last + (1 if step > 0 else -1), step):
+        try:
+            name = words[0] % number
+        except (ValueError, TypeError):  # a format teem's printf reads but Python's does not: Slicer's reader decides
+            return
+        yield name
+
+
+def _data_file_field(head: bytes, nrrd: bool) -> Optional[tuple[str, int]]:
+    """The value of a header's data file field (NRRD ``data file`` / ``datafile``, MetaImage ``ElementDataFile``)
+    and the offset after its line; None when the header has none (an attached NRRD ends at its blank line)."""
+    names = ("data file", "datafile") if nrrd else ("ElementDataFile",)
+    for text, end in _lines(head):
+        if nrrd and not text.strip():
+            return None
+        key, separator, value = text.partition(":" if nrrd else "=")
+        key = key.strip().lower() if nrrd else key.strip()
+        if separator and not value.startswith("=") and key in names:
+            return value, end
+    return None
 
 
 def _raw_offset(path: Path, data: Path, start: int, nbytes: int, skip: int) -> int:
@@ -263,7 +346,14 @@ def _metaimage(path: Path, head: bytes) -> Optional[StoredVoxels]:
                 f"bytes; add the line 'CompressedDataSize = {os.path.getsize(path) - header_end}' before "
                 "ElementDataFile (or save it again from Slicer)",
             )
-        return StoredVoxels(data, shape, dtype, False, None, stored)
+        found = data.stat().st_size - (header_end if local else 0)
+        declared = int(fields.get("CompressedDataSize", found))
+        where = "follow its header" if local else f"are in its data file '{data.name}'"
+        mismatch = (
+            f"it says CompressedDataSize = {declared}, but {found} bytes of compressed voxels {where}: it is truncated "
+            "or its header is wrong"
+        )
+        return StoredVoxels(data, shape, dtype, False, None, stored, mismatch if declared != found else None)
     nbytes = int(np.prod(shape, dtype=np.float64)) * dtype.itemsize
     skip = int(fields.get("HeaderSize", 0))
     if local and skip > 0:

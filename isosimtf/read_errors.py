@@ -8,6 +8,7 @@ a temporary file), and the first meaningful line can become the reason of a :cla
 import contextlib
 import os
 import re
+import stat
 import sys
 import tempfile
 from collections.abc import Iterator
@@ -72,3 +73,32 @@ def itk_reason(text: str) -> str:
 def cannot_read(path: Path, reason: str) -> VolumeReadError:
     """The error for an unreadable input: ``Cannot read 'PATH': reason`` on one line."""
     return VolumeReadError(f"Cannot read '{path}': {' '.join(reason.split())}")
+
+
+def regular_file(owner: Path, file: Path, role: str) -> Path:
+    """``file``, refused unless it is a regular file (links followed), before anything opens it for voxels.
+
+    Opening a FIFO waits for a writer forever, and a device (or a link to one, e.g. ``/dev/zero``) is read without
+    end: every file read for the voxels of ``owner`` (the input, a detached data file, a Zarr chunk, a TIFF plane)
+    passes here first.
+
+    Args:
+        owner: the input the messages name. file: the file to check (``owner`` itself for the input).
+        role: what ``file`` is to ``owner`` in messages, e.g. ``"its data file"`` (``"it"`` for the input itself).
+
+    Raises:
+        VolumeReadError: ``file`` is missing, unreadable, a folder, a FIFO, a socket or a device.
+    """
+    subject = role if file == owner else f"{role} '{file}'"
+    if file != owner and os.path.islink(file):
+        subject += f" (a link to '{os.path.realpath(file)}')"
+    try:
+        mode = os.stat(file).st_mode
+    except OSError as error:
+        raise cannot_read(owner, f"{subject} cannot be opened ({error.strerror})") from None
+    if stat.S_ISDIR(mode):
+        raise cannot_read(owner, f"{subject} is not a regular file (a folder)")
+    if not stat.S_ISREG(mode):
+        advice = "give a volume file or folder" if file == owner else "voxels are read from regular files only"
+        raise cannot_read(owner, f"{subject} is not a regular file (a FIFO, socket or device): {advice}")
+    return file

@@ -23,6 +23,7 @@ can hold (a gzip stream expands at most about 1032 times), and small enough for 
 """
 
 import gzip
+import math
 import os
 import plistlib
 import struct
@@ -31,6 +32,7 @@ import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Optional, Union
+from xml.parsers.expat import ExpatError
 
 import numpy as np
 
@@ -39,7 +41,7 @@ from IsoSimilarityTFLib.memory import check_memory
 
 from . import chunked_readers, headers, slicer_readers
 from .formatting import format_bytes
-from .read_errors import cannot_read, captured_native_output, first_message
+from .read_errors import cannot_read, captured_native_output, first_message, regular_file
 from .volume import Volume
 
 PathLike = Union[str, "os.PathLike[str]"]
@@ -101,9 +103,8 @@ def read_volume(path: PathLike, *, n_bins: Optional[int] = None) -> Volume:
     path = Path(path)
     if not path.exists():
         raise cannot_read(path, "no such file or directory")
-    if not path.is_file() and not path.is_dir():
-        # Opening a FIFO waits for a writer forever; a device would be read without end.
-        raise cannot_read(path, "it is not a regular file (a FIFO, socket or device): give a volume file or folder")
+    if not path.is_dir():
+        regular_file(path, path, "it")
     reader = reader_for(path)
     if reader is None:
         raise cannot_read(
@@ -137,6 +138,7 @@ def reader_for(path: Path) -> Optional[Reader]:
 
 def _read_nrrd_metaimage_nifti(path: Path, name: str, n_bins: Optional[int]) -> Volume:
     """NRRD, MetaImage, NIfTI: Slicer's reader, or the lazy raw reader for a raw file too large for memory."""
+    headers.check_data_files(path)
     # The storage fields of a NRRD / MetaImage header, parsed once for the lazy-or-not choice, the size bound and
     # the exact read of 64-bit integers.
     stored = headers.stored_voxels(path)  # None for NIfTI
@@ -180,13 +182,15 @@ def _check_size(
     dtype: np.dtype,
     n_bins: Optional[int],
     stored_bytes: Optional[int] = None,
+    held_bytes: int = 0,
 ) -> None:
     """Refuse, from the header alone, what is not a 3-D scalar volume, cannot be in the file, or would not fit.
 
     Args:
         dimensions: voxels along i, j, k. components: values per voxel. dtype: the values' type.
         n_bins: passed to the memory check. stored_bytes: bytes of the file(s) holding the voxels, when the format
-            stores them raw or deflated (the bound above which the header must be lying).
+            stores them raw or deflated (the bound above which the header must be lying). held_bytes: bytes the
+            reader holds in memory beside the voxels (NIfTI header extensions).
     """
     if components != 1:
         raise cannot_read(
@@ -202,7 +206,7 @@ def _check_size(
             f"its header announces {size} voxels of {dtype.name} ({format_bytes(voxel_bytes)}), more than its "
             f"{stored_bytes} bytes on disk can hold: it is truncated or corrupt",
         )
-    check_memory(tuple(int(d) for d in dimensions[::-1]), n_bins, input_bytes=voxel_bytes)
+    check_memory(tuple(int(d) for d in dimensions[::-1]), n_bins, input_bytes=voxel_bytes + held_bytes)
 
 
 def _read_with_slicer(
@@ -214,17 +218,21 @@ def _read_with_slicer(
 ) -> Volume:
     """Read with Slicer's storage node, or (64-bit integers) exactly from the raw file; ``stored``: the storage
     fields of a NRRD / MetaImage header (None for other formats and DICOM)."""
+    # A NIfTI's storage is checked first: Slicer's header pass reads its extensions into memory.
+    nifti = _nifti_layout(path) if path.name.lower().endswith((".nii", ".nii.gz")) else None
     header = slicer_readers.read_header(path, files)
-    nifti = path.name.lower().endswith((".nii", ".nii.gz"))
     if stored is not None:
         on_disk = stored.stored_bytes
     elif path.name.lower().endswith(headers.RAW_HEADER_SUFFIXES):
         on_disk = None  # a list or pattern of data files: only the memory bound applies
     else:
         on_disk = sum(f.stat().st_size for f in files)
-    _check_size(path, header.dimensions, header.components, header.dtype, n_bins, on_disk)
-    if nifti:
-        _check_nifti(path, header.dimensions)
+    held = nifti.extension_bytes if nifti is not None else 0
+    _check_size(path, header.dimensions, header.components, header.dtype, n_bins, on_disk, held)
+    if stored is not None and stored.size_mismatch:
+        raise cannot_read(path, stored.size_mismatch)
+    if nifti is not None:
+        _check_nifti(path, header.dimensions, nifti)
     if stored is not None and stored.dtype.kind in "iu" and stored.dtype.itemsize == 8:
         # Slicer's reader turns 64-bit integers into float32 (exact only below 2^24): read the stored integers.
         if not stored.raw:
@@ -244,15 +252,42 @@ def _read_with_slicer(
 _NIFTI_INT64 = {1024: "int64", 1280: "uint64"}
 
 
-def _check_nifti(path: Path, dimensions: tuple[int, int, int]) -> None:
-    """Refuse a truncated NIfTI file (Slicer's NIfTI reader fills missing voxels with zeros and says nothing) and
-    64-bit integers (which it rounds to float32).
+#: Bytes of NIfTI header extensions accepted. They hold metadata (AFNI attributes, a DICOM header, XML): kilobytes to
+#: a few MB. Slicer's reader holds them in memory beside the voxels, so a small ``.nii.gz`` declaring gigabytes of
+#: zeros there would take gigabytes.
+MAX_NIFTI_EXTENSION_BYTES = 64 << 20
+
+
+@dataclass(frozen=True)
+class _NiftiLayout:
+    """Where a NIfTI file keeps its voxels: they start at ``offset`` (``vox_offset``) after the header's
+    ``header_bytes`` (348 or 540) and its extensions, take ``bitpix`` bits each, and the file (inflated) holds
+    ``size`` bytes."""
+
+    bitpix: int
+    offset: int
+    header_bytes: int
+    size: int
+
+    @property
+    def extension_bytes(self) -> int:
+        """Bytes between the header and the voxels: the extensions, read into memory by Slicer's reader."""
+        return self.offset - self.header_bytes
+
+
+def _nifti_layout(path: Path) -> _NiftiLayout:
+    """The storage of a NIfTI file, checked before Slicer's reader reads its header (and the extensions with it).
 
     The voxels start at ``vox_offset`` and take ``bitpix`` bits each, the stored type: with ``scl_slope`` /
     ``scl_inter`` Slicer gives float32 values of int16 (or uint16, ...) voxels, so the bytes on disk are counted
     from the header's own type, never from the type Slicer returns. NIfTI-1: datatype, bitpix int16 at bytes 70, 72;
     vox_offset float32 at 108. NIfTI-2: int16 at 12, 14; int64 at 168. A ``.nii.gz`` is decompressed as a stream
     (never held in memory) to count its bytes and to find a truncated or corrupt stream.
+
+    Raises:
+        VolumeReadError: a truncated or corrupt gzip stream, not a NIfTI header, 64-bit integers (which Slicer's
+            reader rounds to float32), a bad ``bitpix`` or ``vox_offset``, voxels starting past the end of the file,
+            or extensions larger than :data:`MAX_NIFTI_EXTENSION_BYTES`.
     """
     opener = gzip.open if path.name.lower().endswith(".gz") else open
     try:
@@ -274,7 +309,7 @@ def _check_nifti(path: Path, dimensions: tuple[int, int, int]) -> None:
         if sizeof_hdr in layouts:
             at_type, kind, at_offset = layouts[sizeof_hdr]
             datatype, bitpix = struct.unpack_from(endian + "hh", head, at_type)
-            offset = max(int(struct.unpack_from(endian + kind, head, at_offset)[0]), sizeof_hdr)
+            vox_offset = struct.unpack_from(endian + kind, head, at_offset)[0]
             break
     else:
         raise cannot_read(path, "not a NIfTI-1 or NIfTI-2 header")
@@ -286,9 +321,28 @@ def _check_nifti(path: Path, dimensions: tuple[int, int, int]) -> None:
         )
     if bitpix <= 0 or bitpix % 8:
         raise cannot_read(path, f"its header gives {bitpix} bits per voxel")
-    voxel_bytes = int(np.prod(dimensions, dtype=np.float64)) * (bitpix // 8)
-    if size - offset < voxel_bytes:
-        found = max(size - offset, 0)
+    if not math.isfinite(vox_offset):
+        raise cannot_read(path, f"its header gives vox_offset {vox_offset}")
+    layout = _NiftiLayout(bitpix, max(int(vox_offset), sizeof_hdr), sizeof_hdr, size)
+    if layout.offset > size:
+        raise cannot_read(
+            path, f"it is truncated: its voxels start at byte {layout.offset} (vox_offset), past its end ({size} bytes)"
+        )
+    if layout.extension_bytes > MAX_NIFTI_EXTENSION_BYTES:
+        raise cannot_read(
+            path,
+            f"its header extensions take {format_bytes(layout.extension_bytes)} (vox_offset {layout.offset}), more "
+            f"than the {format_bytes(MAX_NIFTI_EXTENSION_BYTES)} of metadata accepted (Slicer's reader holds them in "
+            "memory): remove them, e.g. save the volume again from Slicer",
+        )
+    return layout
+
+
+def _check_nifti(path: Path, dimensions: tuple[int, int, int], layout: _NiftiLayout) -> None:
+    """Refuse a truncated NIfTI file: Slicer's NIfTI reader fills missing voxels with zeros and says nothing."""
+    voxel_bytes = int(np.prod(dimensions, dtype=np.float64)) * (layout.bitpix // 8)
+    if layout.size - layout.offset < voxel_bytes:
+        found = layout.size - layout.offset
         raise cannot_read(path, f"it is truncated: {voxel_bytes} bytes of voxel data expected, {found} found")
 
 
@@ -326,7 +380,9 @@ def _read_vti(path: Path, name: str, n_bins: Optional[int]) -> Volume:
     rotation = np.array([[matrix.GetElement(r, c) for c in range(3)] for r in range(3)])
     ijk_to_ras = np.eye(4)
     ijk_to_ras[:3, :3] = rotation * np.asarray(image.GetSpacing())[np.newaxis, :]
-    ijk_to_ras[:3, 3] = image.GetOrigin()
+    # VTK places index (i, j, k) of the extent at origin + direction * spacing * (i, j, k): the first voxel is at the
+    # extent's start, not at the origin, when the extent does not start at 0.
+    ijk_to_ras[:3, 3] = np.asarray(image.GetOrigin()) + ijk_to_ras[:3, :3] @ np.asarray(image.GetExtent()[::2], float)
     return Volume.from_ijk_to_ras(vtk_to_numpy(array).reshape(k, j, i), ijk_to_ras, name)
 
 
@@ -358,13 +414,96 @@ def _read_npy(path: Path, name: str, n_bins: Optional[int]) -> Volume:
     return Volume(np.ascontiguousarray(values), name=name)
 
 
-#: Compressed bytes inflated per read when streaming an ``.inv3``: one pass over the archive in a few long zlib calls,
-#: which release the GIL (the run's background imports proceed meanwhile), where tarfile's default 10 KiB would hand it
-#: back and forth thousands of times.
+#: Compressed bytes inflated per zlib call when reading much of an ``.inv3`` at once (the voxels): one pass over the
+#: archive in a few long zlib calls, which release the GIL (the run's background imports proceed meanwhile), where
+#: calls of a few KiB would hand it back and forth thousands of times.
 _INV3_READ_BYTES = 1 << 22
+#: Compressed bytes inflated per call for a small read (a member's 512-byte header), and the fewest inflated bytes
+#: kept ahead of the reads: headers are served from a small buffer, never sliced out of megabytes.
+_INV3_SMALL_READ_BYTES = 1 << 14
+_INV3_AHEAD_BYTES = 1 << 16
+#: Inflated bytes discarded at a time when skipping a member (a mask, a surface): zeros inflate 1000-fold.
+_INV3_SKIP_BYTES = 1 << 24
+#: Largest ``main.plist`` read: a project's description (names, window, masks) takes a few KB. A member of zeros
+#: inflates 1000-fold (3 MB on disk read as 3 GB), so a larger one is refused from its size before it is read.
+MAX_INV3_PLIST_BYTES = 16 << 20
 
 #: The archive errors that mean a corrupt or truncated ``.inv3``.
 _ARCHIVE_ERRORS = (tarfile.TarError, OSError, EOFError, zlib.error)
+
+
+class _ForwardGzip:
+    """A gzip file read forward, as tarfile's ``r:`` mode reads an archive: exact reads and forward seeks, each
+    inflating about what it returns.
+
+    tarfile's stream mode (``r|gz``) inflates a whole buffer at a time and copies what is left of it after every
+    512-byte header read: quadratic in the number of members (20,000 empty members took 2 s, 40,000 took 29 s).
+    """
+
+    def __init__(self, path: Path) -> None:
+        self._file = open(path, "rb")
+        self._inflater = zlib.decompressobj(wbits=31)  # a gzip stream
+        self._input = b""  # compressed bytes not inflated yet
+        self._ahead = b""  # inflated bytes, read up to self._start
+        self._start = 0
+        self._position = 0
+
+    def __enter__(self) -> "_ForwardGzip":
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self._file.close()
+
+    def tell(self) -> int:
+        return self._position
+
+    def seekable(self) -> bool:
+        return True
+
+    def seek(self, offset: int, whence: int = os.SEEK_SET) -> int:
+        """Skip forward to ``offset`` (at most to the end of the stream); backwards is refused."""
+        if whence != os.SEEK_SET or offset < self._position:
+            raise OSError("an .inv3 archive is read forward only")
+        while self._position < offset and self.read(min(offset - self._position, _INV3_SKIP_BYTES)):
+            pass
+        return self._position
+
+    def read(self, size: int) -> bytes:
+        """The next ``size`` bytes, fewer at the end of the stream."""
+        parts = []
+        wanted = size
+        while wanted > 0:
+            if self._start < len(self._ahead):
+                part = self._ahead[self._start : self._start + wanted]
+                self._start += len(part)
+            else:
+                part = self._inflate(wanted)
+                if not part:
+                    break
+                if len(part) > wanted:
+                    self._ahead, self._start = part, wanted
+                    part = part[:wanted]
+            parts.append(part)
+            wanted -= len(part)
+        data = b"".join(parts)
+        self._position += len(data)
+        return data
+
+    def _inflate(self, wanted: int) -> bytes:
+        """The next inflated bytes: at most ``wanted`` or :data:`_INV3_AHEAD_BYTES`, whichever is larger, from
+        compressed reads sized to ``wanted``; empty at the end of the stream or of the file."""
+        while True:
+            if not self._input:
+                if self._inflater.eof:
+                    return b""
+                large = wanted > _INV3_AHEAD_BYTES
+                self._input = self._file.read(_INV3_READ_BYTES if large else _INV3_SMALL_READ_BYTES)
+                if not self._input:
+                    return b""
+            inflated = self._inflater.decompress(self._input, max(wanted, _INV3_AHEAD_BYTES))
+            self._input = self._inflater.unconsumed_tail
+            if inflated or self._inflater.eof:
+                return inflated
 
 
 @dataclass(frozen=True)
@@ -385,20 +524,28 @@ def _read_inv3(path: Path, name: str, n_bins: Optional[int]) -> Volume:
     """
     matrix: Optional[_Inv3Matrix] = None
     for _ in range(2):
-        try:
-            archive = tarfile.open(path, "r|gz", bufsize=_INV3_READ_BYTES)
-        except _ARCHIVE_ERRORS as error:
-            raise cannot_read(path, f"not an InVesalius project (gzip tar expected: {error})") from None
-        try:
-            with archive:
-                for member in archive:
-                    if matrix is None and member.isfile() and member.name.rsplit("/", 1)[-1] == "main.plist":
-                        matrix = _inv3_matrix(path, member.name, _member_bytes(archive, member))
-                    elif matrix is not None and member.isfile() and member.name == matrix.member:
-                        values = _inv3_voxels(path, archive, member, matrix, n_bins)
-                        return Volume(values, matrix.spacing, (0.0, 0.0, 0.0), matrix.directions, name)
-        except _ARCHIVE_ERRORS as error:
-            raise cannot_read(path, f"the archive is corrupt or truncated ({error})") from None
+        with _ForwardGzip(path) as stream:
+            try:
+                archive = tarfile.open(fileobj=stream, mode="r:")
+            except _ARCHIVE_ERRORS as error:
+                raise cannot_read(path, f"not an InVesalius project (gzip tar expected: {error})") from None
+            try:
+                with archive:
+                    for member in archive:
+                        if matrix is None and member.isfile() and member.name.rsplit("/", 1)[-1] == "main.plist":
+                            if member.size > MAX_INV3_PLIST_BYTES:
+                                raise cannot_read(
+                                    path,
+                                    f"its main.plist holds {format_bytes(member.size)}, more than the "
+                                    f"{format_bytes(MAX_INV3_PLIST_BYTES)} a project description can take: the "
+                                    "project is corrupt",
+                                )
+                            matrix = _inv3_matrix(path, member.name, _member_bytes(archive, member))
+                        elif matrix is not None and member.isfile() and member.name == matrix.member:
+                            values = _inv3_voxels(path, archive, member, matrix, n_bins)
+                            return Volume(values, matrix.spacing, (0.0, 0.0, 0.0), matrix.directions, name)
+            except _ARCHIVE_ERRORS as error:
+                raise cannot_read(path, f"the archive is corrupt or truncated ({error})") from None
         if matrix is None:
             raise cannot_read(path, "no main.plist in the InVesalius project")
     raise cannot_read(path, f"the project has no {matrix.member.rsplit('/', 1)[-1]}")
@@ -408,7 +555,7 @@ def _inv3_matrix(path: Path, plist_name: str, text: bytes) -> _Inv3Matrix:
     """The voxels' description in ``main.plist`` (``plist_name`` locates the data file beside it)."""
     try:
         main = plistlib.loads(text)
-    except (plistlib.InvalidFileException, ValueError):
+    except (plistlib.InvalidFileException, ValueError, ExpatError):
         raise cannot_read(path, "its main.plist is not a property list") from None
     try:
         matrix = main["matrix"]
@@ -420,6 +567,10 @@ def _inv3_matrix(path: Path, plist_name: str, text: bytes) -> _Inv3Matrix:
         raise cannot_read(path, "its main.plist lacks a valid matrix shape, dtype or spacing") from None
     if len(shape) != 3 or len(spacing) != 3:
         raise cannot_read(path, f"the project matrix has shape {shape}; a 3-D (z, y, x) matrix is needed")
+    if dtype.kind not in "iuf":  # e.g. "object": raw bytes read into Python object references
+        raise cannot_read(
+            path, f"its main.plist gives the voxel type '{dtype}'; a number type (int16, uint8, float32, ...) is needed"
+        )
     folder = plist_name.rsplit("/", 1)[0] + "/" if "/" in plist_name else ""
     directions = _INV3_AXIAL_DIRECTIONS if main.get("orientation", 1) in (1, "AXIAL") else np.eye(3)
     return _Inv3Matrix(folder + data_name, shape, dtype, spacing, directions)

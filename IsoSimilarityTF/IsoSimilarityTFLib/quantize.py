@@ -13,6 +13,9 @@ _FLOAT_CHUNK = 1 << 16
 _MAX_LOOKUP_SPAN = 1 << 22
 # Voxels looked up at once: small enough that the index array stays in cache.
 _LOOKUP_CHUNK = 1 << 20
+#: Largest magnitude of a value range: the design sums values weighted by voxel counts (up to 2^64) and takes their
+#: differences in float64, which overflow beyond (every colour white, numpy's warnings on stderr).
+MAX_VALUE_MAGNITUDE = float(np.finfo(np.float64).max) / 2.0**64
 # Values counted per np.bincount call: their 64-bit copy (2 MB) stays in the core's cache, and each call's table
 # (64K entries when counting voxel pairs) is small beside them.
 _COUNT_CHUNK = 1 << 18
@@ -163,6 +166,11 @@ def resolved_value_range(value_range, data_range: tuple[float, float]) -> tuple[
                 f"value_range [{low:g}, {high:g}] lies outside the volume's values [{data_range[0]:g}, "
                 f"{data_range[1]:g}]: every voxel would fall in one bin"
             )
+    if max(-low, high) > MAX_VALUE_MAGNITUDE:
+        raise ValueError(
+            f"the value range [{low:g}, {high:g}] reaches beyond +-{MAX_VALUE_MAGNITUDE:.3g}, where float64 sums of "
+            "values overflow: scale the values first (e.g. values * 1e-300)"
+        )
     if (high - low) / MAX_BINS < np.finfo(np.float64).tiny:
         # Bins narrower than the smallest normal float64 (denormal values): the bin arithmetic overflows and every
         # voxel would land in a meaningless bin.

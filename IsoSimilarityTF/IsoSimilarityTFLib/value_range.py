@@ -24,6 +24,7 @@ from typing import Any, Optional
 import numpy as np
 
 from .chunked import is_dask_array
+from .quantize import MAX_VALUE_MAGNITUDE
 
 #: Least share of the voxels at one extreme value for it to be padding.
 PADDING_FRACTION = 0.005
@@ -126,7 +127,8 @@ def robust_value_range(values: Any, *, sample_voxels: int = SAMPLE_VOXELS) -> Ro
     Returns:
         A :class:`RobustRange`; its ``value_range`` is what ``quantize(values, value_range=...)`` should get, and
         its :meth:`RobustRange.warning` the one line to show when it leaves something out. A volume holding NaN or
-        infinite values is returned with its data range unchanged (the design refuses it, saying so).
+        infinite values, or values beyond ``quantize.MAX_VALUE_MAGNITUDE`` (whose spreads overflow), is returned
+        with its data range unchanged (the design refuses it, saying so).
     """
     if np.issubdtype(values.dtype, np.floating):
         if _count(values, lambda v: ~np.isfinite(v)):
@@ -134,6 +136,8 @@ def robust_value_range(values: Any, *, sample_voxels: int = SAMPLE_VOXELS) -> Ro
             return RobustRange((low, high), (low, high))
     low, high = _min_max(values)
     data_range = (low, high)
+    if max(-low, high) > MAX_VALUE_MAGNITUDE:
+        return RobustRange(data_range, data_range)
     sample = np.sort(_sample(values, sample_voxels))
     if high <= low or sample.size < 2:
         return RobustRange(data_range, data_range)

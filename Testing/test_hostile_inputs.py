@@ -1,0 +1,352 @@
+"""Hostile inputs (issue 26): each is refused in one line (exit 2), or read right, never a hang, a traceback, unbounded
+memory or a plausible wrong answer with exit 0. Every case runs ``isosimtf INPUT -o OUT --no-render -q``.
+
+Runs that waited forever before the fix carry a deadline: in-process runs an alarm (a FIFO opened in the main thread
+is interrupted), Zarr runs (whose chunks dask reads in worker threads, which no alarm interrupts) a subprocess with a
+timeout and a bounded address space (a chunk linked to /dev/zero was read without end).
+"""
+
+import contextlib
+import gzip
+import io
+import json
+import os
+import plistlib
+import signal
+import struct
+import subprocess
+import sys
+import tarfile
+import time
+import warnings
+import zlib
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from volume_writers import write_volume
+
+from IsoSimilarityTFLib import memory
+from IsoSimilarityTFLib.quantize import MAX_VALUE_MAGNITUDE, quantize
+from IsoSimilarityTFLib.value_range import robust_value_range
+from isosimtf import cli
+from isosimtf.rendering import slicer_core_available
+from isosimtf.volume_io import MAX_INV3_PLIST_BYTES, MAX_NIFTI_EXTENSION_BYTES, Volume
+
+needs_slicer = pytest.mark.skipif(not slicer_core_available(), reason="slicer-core is not installed")
+
+#: Seconds a run may take before it is taken for hung (every run here ends in about one).
+DEADLINE = 20
+NI, NJ, NK = 8, 7, 6
+NRRD = f"NRRD0004\ntype: short\ndimension: 3\nsizes: {NI} {NJ} {NK}\nendian: little\nencoding: raw\n"
+MHA = f"ObjectType = Image\nNDims = 3\nDimSize = {NI} {NJ} {NK}\nElementType = MET_SHORT\n"
+
+
+def _values(dtype=np.int16) -> np.ndarray:
+    """A small volume (NK, NJ, NI) with a few distinct intensities, different along every axis."""
+    return (np.arange(NK * NJ * NI).reshape(NK, NJ, NI) % 50 * 10).astype(dtype)
+
+
+@contextlib.contextmanager
+def _deadline(seconds: int = DEADLINE) -> Iterator[None]:
+    """Interrupt the block after ``seconds`` (a blocking open of a FIFO in the main thread returns to raise)."""
+
+    def expire(signum, frame) -> None:
+        raise TimeoutError(f"still running after {seconds} s")
+
+    previous = signal.signal(signal.SIGALRM, expire)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def _run(source: Path, tmp_path: Path, capfd) -> tuple[int, str]:
+    """``isosimtf SOURCE -o OUT --no-render -q`` in this process: its exit status and standard error."""
+    with _deadline():
+        code = cli.main([str(source), "-o", str(tmp_path / "out"), "--no-render", "-q"])
+    return code, capfd.readouterr().err
+
+
+def _refused(source: Path, tmp_path: Path, capfd) -> str:
+    """The one error line of a run refusing ``source`` as an input error (exit 2)."""
+    code, err = _run(source, tmp_path, capfd)
+    assert code == 2, err
+    assert err.count("\n") == 1 and err.startswith("isosimtf: error: "), err
+    return err
+
+
+#: Runs ``isosimtf`` (``python -m isosimtf``) with its address space bounded to the first argument, in bytes.
+_BOUNDED_ISOSIMTF = (
+    "import resource, runpy, sys; limit = int(sys.argv.pop(1)); "
+    "resource.setrlimit(resource.RLIMIT_AS, (limit, limit)); runpy.run_module('isosimtf', run_name='__main__')"
+)
+
+
+def _refused_in_a_process(source: Path, tmp_path: Path) -> str:
+    """The one error line of ``isosimtf`` refusing ``source``, run in a subprocess (3 GiB of address space)."""
+    argv = [str(source), "-o", str(tmp_path / "out"), "--no-render", "-q"]
+    done = subprocess.run(
+        [sys.executable, "-c", _BOUNDED_ISOSIMTF, str(3 << 30), *argv],
+        capture_output=True,
+        text=True,
+        timeout=DEADLINE,
+    )
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.count("\n") == 1 and done.stderr.startswith("isosimtf: error: "), done.stderr
+    return done.stderr
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# 1. Every file read for voxels is a regular file
+# ---------------------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("header", "text"),
+    [
+        ("v.nhdr", NRRD + "data file: x.raw\n"),
+        ("v.nhdr", NRRD.replace(f"{NK}\n", "2\n") + "data file: LIST\na.raw\nx.raw\n"),
+        ("v.nhdr", NRRD.replace(f"{NK}\n", "2\n") + "data file: slice%d.raw 0 1 1\n"),
+        ("v.mhd", MHA + "ElementDataFile = x.raw\n"),
+        ("v.mhd", MHA.replace(f"{NK}\n", "2\n") + "ElementDataFile = LIST\na.raw\nx.raw\n"),
+        ("v.mhd", MHA.replace(f"{NK}\n", "2\n") + "ElementDataFile = slice%d.raw 0 1 1"),  # last line without end
+    ],
+    ids=["nrrd", "nrrd-list", "nrrd-pattern", "metaimage", "metaimage-list", "metaimage-pattern"],
+)
+def test_a_fifo_as_a_data_file_is_refused_before_it_is_opened(tmp_path: Path, capfd, header: str, text: str) -> None:
+    """Before: LIST and pattern forms waited forever in Slicer's reader; one data file was said not to exist."""
+    (tmp_path / header).write_text(text)
+    for plane in ("a.raw", "slice0.raw"):
+        (tmp_path / plane).write_bytes(_values()[0].tobytes())
+    fifo = tmp_path / ("slice1.raw" if "%d" in text else "x.raw")
+    os.mkfifo(fifo)
+    err = _refused(tmp_path / header, tmp_path, capfd)
+    assert f"its data file '{fifo}' is not a regular file (a FIFO, socket or device)" in err
+
+
+def test_a_fifo_as_the_input_is_refused(tmp_path: Path, capfd) -> None:
+    """Refused before too; now by the check every data file goes through."""
+    os.mkfifo(tmp_path / "v.nrrd")
+    assert "it is not a regular file (a FIFO, socket or device)" in _refused(tmp_path / "v.nrrd", tmp_path, capfd)
+
+
+def test_a_fifo_in_a_folder_of_tiff_planes_is_refused(tmp_path: Path, capfd) -> None:
+    tifffile = pytest.importorskip("tifffile")
+    stack = tmp_path / "planes"
+    stack.mkdir()
+    for k, plane in enumerate(_values(np.uint16)[:-1]):
+        tifffile.imwrite(stack / f"z{k}.tif", plane)
+    os.mkfifo(stack / f"z{NK - 1}.tif")
+    err = _refused(stack, tmp_path, capfd)
+    assert f"its TIFF plane '{stack / f'z{NK - 1}.tif'}' is not a regular file" in err
+
+
+@pytest.mark.parametrize("chunk", ["fifo", "link-to-dev-zero"])
+def test_a_zarr_chunk_that_is_not_a_regular_file_is_refused(tmp_path: Path, chunk: str) -> None:
+    """Before: a FIFO chunk waited forever, a chunk linked to /dev/zero was read until memory ran out."""
+    zarr = pytest.importorskip("zarr")
+    store = tmp_path / "v.zarr"
+    zarr.create_array(str(store), data=_values(), chunks=(3, NJ, NI))
+    last = max(p for p in store.rglob("*") if p.is_file() and p.name not in ("zarr.json", ".zarray", ".zgroup"))
+    last.unlink()
+    if chunk == "fifo":
+        os.mkfifo(last)
+    else:
+        last.symlink_to("/dev/zero")
+    err = _refused_in_a_process(store, tmp_path)
+    link = " (a link to '/dev/zero')" if chunk != "fifo" else ""
+    assert f"its file '{last}'{link} is not a regular file (a FIFO, socket or device)" in err
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# 2. A VTK image whose extent does not start at 0
+# ---------------------------------------------------------------------------------------------------------------
+
+
+@needs_slicer
+def test_a_vti_extent_not_starting_at_0_places_the_voxels_as_vtk_does(tmp_path: Path, capfd) -> None:
+    """Before: voxel 0 was placed at the origin, the volume shifted by 5 voxels along i with exit 0."""
+    from vtkmodules.util.numpy_support import numpy_to_vtk
+    from vtkmodules.vtkCommonDataModel import vtkImageData
+    from vtkmodules.vtkIOXML import vtkXMLImageDataWriter
+
+    image = vtkImageData()
+    image.SetExtent(5, 5 + NI - 1, 0, NJ - 1, 0, NK - 1)
+    image.SetSpacing(0.5, 2.0, 3.0)
+    image.SetOrigin(1.0, 2.0, 3.0)
+    image.SetDirectionMatrix(0, -1, 0, 1, 0, 0, 0, 0, 1)
+    image.GetPointData().SetScalars(numpy_to_vtk(_values().ravel(), deep=True))
+    writer = vtkXMLImageDataWriter()
+    writer.SetFileName(str(tmp_path / "v.vti"))
+    writer.SetInputData(image)
+    assert writer.Write()
+    code, err = _run(tmp_path / "v.vti", tmp_path, capfd)
+    assert code == 0, err
+    ijk_to_ras = np.array(json.loads((tmp_path / "out" / "classes.json").read_text())["input"]["ijk_to_ras"])
+    for index in [(0, 0, 0), (NI - 1, 0, 0), (2, 3, 4)]:  # the file's voxel (i, j, k) is VTK's point (5 + i, j, k)
+        truth = [0.0, 0.0, 0.0]
+        image.TransformIndexToPhysicalPoint(5 + index[0], index[1], index[2], truth)
+        np.testing.assert_allclose(ijk_to_ras @ [*index, 1.0], [*truth, 1.0], atol=1e-9)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# 3. A compressed MetaImage whose CompressedDataSize is not its compressed size
+# ---------------------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("local", "error"), [(True, -10), (True, 100), (False, -50)])
+def test_a_wrong_compressed_data_size_is_refused(tmp_path: Path, capfd, local: bool, error: int) -> None:
+    """Before: a smaller size read voxels of garbage with exit 0 (a larger one failed with an unrelated reason)."""
+    compressed = zlib.compress(_values().tobytes())
+    header = MHA + f"CompressedData = True\nCompressedDataSize = {len(compressed) + error}\n"
+    if local:
+        path = tmp_path / "v.mha"
+        path.write_bytes(f"{header}ElementDataFile = LOCAL\n".encode() + compressed)
+    else:
+        path = tmp_path / "v.mhd"
+        path.write_text(f"{header}ElementDataFile = v.zraw\n")
+        (tmp_path / "v.zraw").write_bytes(compressed)
+    err = _refused(path, tmp_path, capfd)
+    assert f"it says CompressedDataSize = {len(compressed) + error}, but {len(compressed)} bytes" in err
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# 4. Values near the float64 maximum
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def test_values_near_the_float64_maximum_are_refused_without_warnings(tmp_path: Path, capfd) -> None:
+    """Before: numpy's overflow warnings on stderr, one class and every colour white, with exit 0."""
+    values = np.zeros((NK, NJ, NI))
+    values[: NK // 2], values[NK // 2 :] = -1.7e308, 1.7e308
+    values[1, 2, 3] = 0.0
+    np.save(tmp_path / "v.npy", values)
+    err = _refused(tmp_path / "v.npy", tmp_path, capfd)
+    assert "the value range [-1.7e+308, 1.7e+308] reaches beyond" in err and "Warning" not in err
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError, match="reaches beyond"):
+            quantize(values)
+        # Up to the bound, the bins are right and nothing overflows.
+        bound = np.array([-1.0, -0.5, 0.0, 0.5, 1.0]) * MAX_VALUE_MAGNITUDE
+        at_bound = np.broadcast_to(bound, (2, 2, 5))
+        assert robust_value_range(at_bound).value_range == (-MAX_VALUE_MAGNITUDE, MAX_VALUE_MAGNITUDE)
+        np.testing.assert_array_equal(quantize(at_bound, n_bins=4).bins[0, 0], [0, 1, 2, 3, 3])
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# 5. NIfTI header extensions
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def _nifti_with_extension(path: Path, extension_bytes: int, *, declared: int = 0) -> None:
+    """A NIfTI-1 file (Slicer's own writing) with ``extension_bytes`` of zeros as a header extension between the
+    header and the voxels; ``declared``: a larger extension (and vox_offset) than the file holds."""
+    plain = path.with_name("plain.nii")
+    write_volume(Volume(_values(), name="v"), plain, compress=False)
+    data = plain.read_bytes()
+    size = declared or extension_bytes
+    header = bytearray(data[:348])
+    struct.pack_into("<f", header, 108, float(352 + size))  # vox_offset
+    extension = struct.pack("<4B2i", 1, 0, 0, 0, size, 0) + bytes(extension_bytes - 8)
+    with gzip.open(path, "wb", compresslevel=1) if path.name.endswith(".gz") else open(path, "wb") as handle:
+        handle.write(bytes(header) + extension + data[352:])
+
+
+@needs_slicer
+@pytest.mark.parametrize("name", ["v.nii", "v.nii.gz"])
+def test_a_nifti_extension_past_the_end_of_the_file_is_refused(tmp_path: Path, capfd, name: str) -> None:
+    _nifti_with_extension(tmp_path / name, 16, declared=3 << 29)  # 1.5 GiB declared
+    vox_offset = int(np.float32(352 + (3 << 29)))
+    err = _refused(tmp_path / name, tmp_path, capfd)
+    assert f"it is truncated: its voxels start at byte {vox_offset} (vox_offset), past its end" in err
+
+
+@needs_slicer
+def test_a_nifti_extension_beyond_the_bound_is_refused_before_slicer_reads_it(tmp_path: Path, capfd) -> None:
+    """Before: a 90 KB .nii.gz holding 80 MiB of extension was read (Slicer's reader holds it in memory)."""
+    _nifti_with_extension(tmp_path / "v.nii.gz", MAX_NIFTI_EXTENSION_BYTES + (16 << 20))
+    assert (tmp_path / "v.nii.gz").stat().st_size < 1 << 20
+    assert "its header extensions take 80 MiB" in _refused(tmp_path / "v.nii.gz", tmp_path, capfd)
+
+
+@needs_slicer
+def test_nifti_extensions_count_in_the_memory_check(tmp_path: Path, capfd, monkeypatch) -> None:
+    """Before: the memory check counted the voxels only, not the extensions Slicer's reader holds beside them."""
+    _nifti_with_extension(tmp_path / "v.nii", 4 << 20)
+    needed_without = memory.design_memory_bytes((NK, NJ, NI), 256) + _values().nbytes
+    monkeypatch.setattr(memory, "available_memory_bytes", lambda: needed_without + (1 << 20))
+    code, err = _run(tmp_path / "v.nii", tmp_path, capfd)
+    assert code == 1 and err.count("\n") == 1 and f"a volume of {NK} x {NJ} x {NI} voxels" in err, err
+    monkeypatch.setattr(memory, "available_memory_bytes", lambda: needed_without + (5 << 20))
+    assert _run(tmp_path / "v.nii", tmp_path, capfd)[0] == 0
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# 6. InVesalius projects
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def _inv3(path: Path, *, empty_members: int = 0, plist_padding: int = 0, dtype: str = "int16", voxels=None) -> None:
+    """An InVesalius project: ``empty_members`` empty files, then main.plist (followed by ``plist_padding`` zero
+    bytes) and matrix.dat."""
+    voxels = _values().tobytes() if voxels is None else voxels
+    main = {"matrix": {"shape": [NK, NJ, NI], "dtype": dtype, "filename": "matrix.dat"}, "spacing": [1.0, 1.0, 1.0]}
+    members = [("main.plist", plistlib.dumps(main) + bytes(plist_padding)), ("matrix.dat", voxels)]
+    with tarfile.open(path, "w:gz", compresslevel=1) as archive:
+        empty = tarfile.TarInfo("project/empty")
+        for n in range(empty_members):
+            empty.name = f"project/empty_{n}"
+            archive.addfile(empty)
+        for name, data in members:
+            info = tarfile.TarInfo(f"project/{name}")
+            info.size = len(data)
+            archive.addfile(info, io.BytesIO(data))
+
+
+def test_an_inv3_main_plist_larger_than_the_bound_is_refused_unread(tmp_path: Path, capfd) -> None:
+    """Before: read whole (a member of zeros inflates 1000-fold), then an internal error from the XML parser."""
+    _inv3(tmp_path / "v.inv3", plist_padding=MAX_INV3_PLIST_BYTES + 1)
+    assert "its main.plist holds 16 MiB, more than the 16 MiB" in _refused(tmp_path / "v.inv3", tmp_path, capfd)
+
+
+def test_an_inv3_with_many_empty_members_is_read_in_linear_time(tmp_path: Path, capfd) -> None:
+    """Before: quadratic in the members (20,000 took 8 s, 40,000 took 30 s; 200,000 would take hours)."""
+    _inv3(tmp_path / "v.inv3", empty_members=20_000)
+    start = time.perf_counter()
+    code, err = _run(tmp_path / "v.inv3", tmp_path, capfd)
+    assert code == 0, err
+    assert time.perf_counter() - start < 3.0
+    assert json.loads((tmp_path / "out" / "classes.json").read_text())["input"]["value_max"] == 490
+
+
+@pytest.mark.parametrize("dtype", ["object", "<U4", "no such type"])
+def test_an_inv3_voxel_type_that_is_not_a_number_is_refused(tmp_path: Path, capfd, dtype: str) -> None:
+    """Before: ``object`` (with as many bytes as it needs) was an internal error, ``<U4`` one from numpy."""
+    _inv3(tmp_path / "v.inv3", dtype=dtype, voxels=bytes(8 * NK * NJ * NI if dtype == "object" else 16 * NK * NJ * NI))
+    err = _refused(tmp_path / "v.inv3", tmp_path, capfd)
+    assert f"voxel type '{dtype}'; a number type" in err or "lacks a valid matrix shape, dtype" in err
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# 7. TIFF pages of different sizes or types
+# ---------------------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("other", ["size", "type"])
+def test_tiff_pages_that_differ_are_refused(tmp_path: Path, capfd, other: str) -> None:
+    """Before: the first series alone was read, a volume that passes for the file's, with exit 0."""
+    tifffile = pytest.importorskip("tifffile")
+    last = np.ones((5, 5), np.uint16) if other == "size" else np.ones((NJ, NI), np.float32)
+    with tifffile.TiffWriter(tmp_path / "v.tif") as writer:
+        for plane in _values(np.uint16):
+            writer.write(plane, metadata=None)
+        writer.write(last, metadata=None)
+    err = _refused(tmp_path / "v.tif", tmp_path, capfd)
+    assert (
+        f"its TIFF pages differ: page 1 is ({NJ}, {NI}) of uint16, page {NK + 1} is {last.shape} of {last.dtype}" in err
+    )
