@@ -110,10 +110,11 @@ def render_thumbnail(
     _check_unit_distance(unit_distance)
     (depth_axis, row_axis, col_axis), _ = _layout(view)
 
-    alpha = _sample_alpha(opacity, spacing_zyx[depth_axis] / unit_distance)[bins]
-    rgb = _oriented(np.clip(colors, 0.0, 1.0)[bins], view)
+    # A picture's worth of precision: single precision halves the time of every pass over the preview.
+    alpha = _sample_alpha(opacity, spacing_zyx[depth_axis] / unit_distance).astype(np.float32)[bins]
+    rgb = _oriented(np.clip(colors, 0.0, 1.0).astype(np.float32)[bins], view)
     if shading:
-        rgb = rgb * _headlight(opacity[bins], spacing_zyx, view)[..., None]
+        rgb = rgb * _headlight(opacity.astype(np.float32)[bins], spacing_zyx, view)[..., None]
     weights, transmittance = _front_to_back(_oriented(alpha, view))
     # The premultiplied colour and the transmittance are resampled, then laid over the background.
     composite = np.concatenate([np.einsum("drc,drck->rck", weights, rgb), transmittance[..., None]], axis=-1)
@@ -216,8 +217,8 @@ def _front_to_back(alpha: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         The weight of each sample in its pixel (transmittance in front of it times its alpha), same shape, and the
         ``(rows, columns)`` transmittance left behind the last sample.
     """
-    weights = np.empty(alpha.shape)
-    transmittance = np.ones(alpha.shape[1:])
+    weights = np.empty(alpha.shape, dtype=alpha.dtype)
+    transmittance = np.ones(alpha.shape[1:], dtype=alpha.dtype)
     for depth, slice_alpha in enumerate(alpha):
         np.multiply(transmittance, slice_alpha, out=weights[depth])
         transmittance *= 1.0 - slice_alpha
@@ -239,7 +240,7 @@ def _headlight(opacity_field: np.ndarray, spacing_zyx: tuple[float, float, float
     gradient = [
         _oriented(np.gradient(smooth, spacing_zyx[axis], axis=axis), view)
         if smooth.shape[axis] > 1
-        else np.zeros(_oriented(smooth, view).shape)
+        else np.zeros(_oriented(smooth, view).shape, dtype=smooth.dtype)
         for axis in range(3)
     ]
     # The normal where the ray enters the voxel, half a voxel toward the camera: at the centre of a shell one voxel
