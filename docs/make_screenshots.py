@@ -1,8 +1,9 @@
 """Regenerate the README pictures under Resources/Screenshots with the isosimtf tool itself.
 
 Run from the repository root: .venv/bin/python docs/make_screenshots.py (needs the Debian packages
-invesalius-examples and mricron-data for the two real volumes). Class grids are stored as 256-colour PNGs
-(Pillow's max-coverage quantizer) to keep the repository small.
+invesalius-examples and mricron-data for the two real volumes). Class grids and the gallery's thumbnails are stored
+as 256-colour PNGs (Pillow's max-coverage quantizer) to keep the repository small; commit a picture only when it
+changes what a reader sees.
 """
 
 import shutil
@@ -36,8 +37,10 @@ def main() -> None:
             subprocess.run([str(TOOL), str(source), "-o", out, "--size", "320", "--quiet"], check=True)
             shutil.copyfile(Path(out) / "render.png", SHOTS / f"{name}-render.png")
             shutil.copyfile(Path(out) / "similarity.png", SHOTS / f"{name}-similarity.png")
-            grid = Image.open(Path(out) / "classes.png").convert("RGB")
-            grid.quantize(256, method=Image.Quantize.MAXCOVERAGE).save(SHOTS / f"{name}-classes.png", optimize=True)
+            for grid_name in ("classes", "looks"):  # the tissues' tiles; the gallery's thumbnails
+                grid = Image.open(Path(out) / f"{grid_name}.png").convert("RGB")
+                quantized = grid.quantize(256, method=Image.Quantize.MAXCOVERAGE)
+                quantized.save(SHOTS / f"{name}-{grid_name}.png", optimize=True)
         print(f"{name}: done")
 
 
