@@ -12,7 +12,7 @@ name                what it shows                                            off
                     (bone of a CT, the parts of an engine)
 ``outer-surface``   the tissue met first as a surface (the skin of a head,   always
                     a brain's cortex: MR-Default's look)
-``see-through``     the dense parts seen through the bulk, which keeps       a class is ``dense`` and another
+``see-through``     the dense parts look, with the bulk around them kept at   a class is ``dense`` and another
                     :attr:`.LookRules.see_through` of the picture            ``bulk``
 ``thin-structures`` the rim shown as structure: small vessels, twigs         a real share of the voxels is ``rim``
 ``all-tissues``     every tissue, on the presets' monotone ramp              two tissues or more
@@ -78,6 +78,8 @@ class LookContext:
     # The light per class of every transfer function rendered so far, by its bin opacities: a look's last step and
     # its measure are often one render.
     _renders: dict = field(default_factory=dict, repr=False, compare=False)
+    # The looks made so far, by name: one look may start from another (see-through from the dense parts).
+    _made: dict = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
     def build(cls, *, rules: LookRules = RULES, **inputs) -> "LookContext":
@@ -206,7 +208,7 @@ def make_look(name: str, context: LookContext) -> Optional[GalleryLook]:
     """The look ``name`` (one of :data:`LOOK_NAMES`), or None where the data do not support it."""
     if name not in _MAKERS:
         raise ValueError(f"no look {name!r}; looks are {', '.join(LOOK_NAMES)}")
-    made = _MAKERS[name](context)
+    made = _made(context, name)
     if made is None:
         return None
     colors, opacities, visible = made
@@ -301,6 +303,14 @@ def _dense_parts(context: LookContext) -> Made:
     return _with_ramp_colors(context, colors, dense), list(opacities), list(visible)
 
 
+def _made(context: LookContext, name: str) -> Made:
+    """The colours, opacities and visibility of the look ``name`` (made once per context), as fresh lists."""
+    if name not in context._made:
+        context._made[name] = _MAKERS[name](context)
+    made = context._made[name]
+    return None if made is None else ([list(c) for c in made[0]], list(made[1]), list(made[2]))
+
+
 def _light(context: LookContext, opacities: np.ndarray, visible: np.ndarray) -> np.ndarray:
     """``(n_classes,)`` light each class sends to the eye (the preview's six views)."""
     bin_opacity = _bin_opacity(context, opacities, visible)
@@ -320,7 +330,10 @@ def _see_through(context: LookContext) -> Made:
     dense, bulk = context.of_role("dense"), context.of_role("bulk")
     if context.preview is None or not dense.any() or not bulk.any():
         return None
-    colors, opacities, visible = _default(context, "ct")
+    start = _made(context, "dense-parts")
+    if start is None:
+        return None
+    colors, opacities, visible = start
     # The dense parts as surfaces (at least the ramp's top), the bulk around them at the share searched below.
     opacities = np.where(dense, np.maximum(opacities, context.rules.opacity_high), opacities)
     visible = np.array(visible) | bulk | dense
