@@ -1,11 +1,15 @@
-"""Write test volumes: NRRD, MetaImage and NIfTI through Slicer's own storage node, VTK image data, and .npy.
+"""Write test volumes: NRRD, MetaImage and NIfTI through Slicer's own storage node, VTK image data, and .npy; and
+NIfTI-2 and NIfTI pairs (``.hdr`` / ``.img``), which Slicer does not write, from the standard's header layout.
 
 Test-only: the command line reads volumes, it never writes them. Writing through
 ``vtkMRMLVolumeArchetypeStorageNode`` (PyPI's ``slicer-core``) gives files as Slicer saves them, in each format's own
 world convention (LPS for NRRD and MetaImage, RAS for NIfTI).
 """
 
+import gzip
+import struct
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 
@@ -67,3 +71,60 @@ def write_volume(volume: Volume, path: Path, *, compress: bool = True) -> None:
             raise OSError(f"cannot write {path}")
     else:
         raise ValueError(f"cannot write {path}: unknown suffix")
+
+
+#: NIfTI datatype codes of the types written by :func:`write_nifti`.
+_NIFTI_DATATYPES = {np.dtype(np.uint8): 2, np.dtype(np.int16): 4, np.dtype(np.float32): 16}
+
+
+def write_nifti(
+    path: Path,
+    values: np.ndarray,
+    ijk_to_ras: np.ndarray,
+    *,
+    version: int = 2,
+    slope: float = 1.0,
+    inter: float = 0.0,
+    magic: Optional[bytes] = None,
+) -> None:
+    """Write NIfTI-1 or NIfTI-2, one file (``.nii``, ``.nii.gz``) or a pair (``.hdr`` and ``.img``), little-endian,
+    byte by byte from the standard's layout: Slicer's writer writes neither NIfTI-2 nor a pair.
+
+    The geometry is the sform (code 2, aligned anatomical) ``ijk_to_ras`` (NIfTI's world is RAS), the qform unset;
+    ``magic`` replaces the standard's (``b"\\0\\0\\0\\0"``: an Analyze 7.5 header).
+    """
+    path = Path(path)
+    pair = path.suffix.lower() == ".hdr"
+    k, j, i = values.shape
+    spacing = np.linalg.norm(ijk_to_ras[:3, :3], axis=0)
+    code, bitpix = _NIFTI_DATATYPES[values.dtype], values.dtype.itemsize * 8
+    size = 348 if version == 1 else 540
+    offset = 0 if pair else size + 4  # after the 4 bytes saying there is no extension
+    header = bytearray(size)
+    if version == 1:
+        struct.pack_into("<i", header, 0, size)
+        struct.pack_into("<8h", header, 40, 3, i, j, k, 1, 1, 1, 1)
+        struct.pack_into("<2h", header, 70, code, bitpix)
+        struct.pack_into("<8f", header, 76, 1.0, *spacing, 0.0, 0.0, 0.0, 0.0)
+        struct.pack_into("<3f", header, 108, offset, slope, inter)
+        header[123] = 2  # xyzt_units: millimetres
+        struct.pack_into("<2h", header, 252, 0, 2)
+        struct.pack_into("<12f", header, 280, *ijk_to_ras[:3].ravel())
+        header[344:348] = magic if magic is not None else b"ni1\0" if pair else b"n+1\0"
+    else:
+        struct.pack_into("<i", header, 0, size)
+        header[4:12] = (magic if magic is not None else b"ni2\0" if pair else b"n+2\0") + b"\r\n\x1a\n"
+        struct.pack_into("<2h", header, 12, code, bitpix)
+        struct.pack_into("<8q", header, 16, 3, i, j, k, 1, 1, 1, 1)
+        struct.pack_into("<8d", header, 104, 1.0, *spacing, 0.0, 0.0, 0.0, 0.0)
+        struct.pack_into("<q2d", header, 168, offset, slope, inter)
+        struct.pack_into("<2i", header, 344, 0, 2)
+        struct.pack_into("<12d", header, 400, *ijk_to_ras[:3].ravel())
+        struct.pack_into("<i", header, 500, 2)  # xyzt_units: millimetres
+    voxels = np.ascontiguousarray(values, dtype=values.dtype.newbyteorder("<")).tobytes()
+    if pair:
+        path.write_bytes(bytes(header) + bytes(4))
+        path.with_suffix(".img").write_bytes(voxels)
+    else:
+        data = bytes(header) + bytes(4) + voxels
+        path.write_bytes(gzip.compress(data) if path.name.lower().endswith(".gz") else data)

@@ -5,8 +5,9 @@ None of these readers loads the volume: each returns a :class:`~.volume.Volume` 
 (``IsoSimilarityTFLib.chunked``).
 
 - Zarr (a folder holding ``zarr.json``, ``.zarray`` or ``.zgroup``): an array, or an OME-Zarr image whose level 0
-  (full resolution) is read; its ``scale`` gives the spacing, turned into millimetres from the axes' ``unit``.
-  Leading axes of one voxel (time, channel) are dropped.
+  (full resolution) is read; its coordinate transformations (the level's, then the image's: ``scale`` and
+  ``translation``) give the spacing and origin, in millimetres from the axes' ``unit`` (with a warning when converted),
+  its coordinates taken as RAS. Leading axes of one voxel (time, channel) are dropped.
 - TIFF: a multi-page file (``.tif``, ``.tiff``) or a folder of single-plane TIFF files (in natural order: ``plane_2``
   before ``plane_10``), one page per
   plane along k, through ``tifffile``'s Zarr view; spacing 1.
@@ -34,7 +35,7 @@ import numpy as np
 from IsoSimilarityTFLib.memory import available_memory_bytes, design_memory_bytes
 
 from .headers import RAW_HEADER_SUFFIXES, StoredVoxels, stored_voxels
-from .read_errors import cannot_read, regular_file
+from .read_errors import cannot_read, python_warning, regular_file
 from .volume import Volume, right_handed
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -82,8 +83,14 @@ def reads_chunked(path: Path, n_bins: Optional[int], stored: Optional[StoredVoxe
     return needed > available // 2
 
 
-def read_chunked(path: Path, stored: Optional[StoredVoxels] = None) -> Volume:
+def read_chunked(
+    path: Path, stored: Optional[StoredVoxels] = None, *, warn: Callable[[str], None] = python_warning
+) -> Volume:
     """Open ``path`` lazily (see the module docstring) as a :class:`~.volume.Volume` holding a dask array.
+
+    Args:
+        stored: the file's :func:`.headers.stored_voxels`, when the caller has it. warn: called with each warning
+            line (a unit converted).
 
     Raises:
         VolumeReadError: not a format read here, a compressed raw file, a raw file missing or truncated, or not a 3-D
@@ -91,8 +98,8 @@ def read_chunked(path: Path, stored: Optional[StoredVoxels] = None) -> Volume:
     """
     name = path.name.split(".")[0] or path.name
     if path.is_dir() and any((path / marker).exists() for marker in _ZARR_MARKERS):
-        values, spacing = _zarr_volume(path)
-        return Volume(values, spacing, name=name)
+        values, spacing, origin = _zarr_volume(path, warn)
+        return Volume(values, spacing, origin, name=name)
     if is_chunked_format(path):
         return Volume(_tiff_volume(path), name=name)
     stored = stored if stored is not None else stored_voxels(path)
@@ -245,31 +252,86 @@ def _read_fully(file: Any, target: np.ndarray, path: Path) -> None:
         view = view[count:]
 
 
-def _zarr_volume(path: Path) -> tuple[Any, tuple[float, float, float]]:
-    """Level 0 of a Zarr array or OME-Zarr image as a 3-D dask array, with its spacing (x, y, z)."""
+def _zarr_volume(path: Path, warn: Callable[[str], None]) -> tuple[Any, tuple[float, ...], tuple[float, ...]]:
+    """Level 0 of a Zarr array or OME-Zarr image as a 3-D dask array, with its spacing and origin (x, y, z)."""
     import dask.array as da
     import zarr
 
     _check_store_files(path)
     node = zarr.open(str(path), mode="r")
-    scale = [1.0, 1.0, 1.0]
+    spacing, origin, notes = (1.0, 1.0, 1.0), (0.0, 0.0, 0.0), []
     if isinstance(node, zarr.Group):
         attrs = dict(node.attrs)
         multiscales = attrs.get("multiscales") or attrs.get("ome", {}).get("multiscales")
         if not multiscales:
             raise cannot_read(path, "it is a Zarr group without OME-Zarr multiscales: name the array itself")
-        level = multiscales[0]["datasets"][0]
-        for transform in level.get("coordinateTransformations", []):
-            if transform.get("type") == "scale":
-                scale = [float(s) for s in transform["scale"]][-3:]
-        units = [axis.get("unit") if isinstance(axis, dict) else None for axis in multiscales[0].get("axes", [])][-3:]
-        scale = [s * _millimetres(path, unit) for s, unit in zip(scale, units + [None] * (3 - len(units)))]
-        node = node[level["path"]]
+        try:
+            spacing, origin, notes = _ome_geometry(path, multiscales[0])
+            level = multiscales[0]["datasets"][0]["path"]
+        except (KeyError, IndexError, TypeError, ValueError) as error:
+            raise cannot_read(
+                path, f"its OME-Zarr multiscales metadata is malformed ({type(error).__name__}: {error})"
+            ) from None
+        node = node[level]
     values = da.from_zarr(node)
     while values.ndim > 3 and values.shape[0] == 1:  # OME-Zarr's time and channel axes
         values = values[0]
     _check_3d(path, values.shape)
-    return values, (scale[2], scale[1], scale[0])
+    for note in notes:  # once the volume is accepted
+        warn(note)
+    return values, spacing, origin
+
+
+def _ome_geometry(path: Path, multiscale: dict) -> tuple[tuple[float, ...], tuple[float, ...], list[str]]:
+    """Spacing and origin (x, y, z, in mm) of level 0 of an OME-Zarr image (OME-NGFF 0.4, 0.5), and what to warn of.
+
+    A voxel's position is its index through the level's ``coordinateTransformations`` then the image's own (each a
+    ``scale``, then optionally a ``translation``), on the last three axes (z, y, x), in the axes' ``unit``.
+
+    Raises:
+        VolumeReadError: a transformation given in a file or of another type (affine, rotation), the last three axes
+            not z, y, x in space, or a unit not known. ValueError: a scale not positive, a vector not one number an
+            axis.
+    """
+    axes = multiscale.get("axes", [])
+    names = [axis.get("name") if isinstance(axis, dict) else axis for axis in axes][-3:]
+    kinds = [axis.get("type") if isinstance(axis, dict) else None for axis in axes][-3:]
+    spatial = [kind == "space" if kind else name not in ("t", "c") for name, kind in zip(names, kinds)]
+    if axes and (len(names) < 3 or not all(spatial) or (set(names) == set("xyz") and names != list("zyx"))):
+        raise cannot_read(
+            path, f"its last three axes are {', '.join(map(str, names))}: a volume needs z, y, x, in space"
+        )
+    scale, offset = np.ones(3), np.zeros(3)
+    for transform in [
+        *multiscale["datasets"][0].get("coordinateTransformations", []),
+        *multiscale.get("coordinateTransformations", []),  # the image's, after the level's
+    ]:
+        kind = transform["type"]
+        if kind == "identity":
+            continue
+        if kind not in ("scale", "translation"):
+            raise cannot_read(path, f"its '{kind}' coordinate transformation is not read here (scale, translation are)")
+        if "path" in transform:
+            raise cannot_read(path, f"its {kind} is given in a file ('path'), which is not read here")
+        vector = np.asarray(transform[kind], dtype=float)
+        if vector.ndim != 1 or vector.size != (len(axes) or 3) or not np.isfinite(vector).all():
+            raise ValueError(f"{kind} {vector.tolist()} for {len(axes)} axes")
+        if kind == "scale" and vector.min() <= 0:
+            raise ValueError(f"scale {vector.tolist()} is not positive")
+        if kind == "scale":
+            scale, offset = scale * vector[-3:], offset * vector[-3:]
+        else:
+            offset = offset + vector[-3:]
+    units = [axis.get("unit") if isinstance(axis, dict) else None for axis in axes][-3:] or [None] * 3
+    millimetres = np.array([_millimetres(path, unit) for unit in units])
+    converted = sorted({unit for unit in units if unit not in (None, "millimeter")})
+    notes = []
+    if converted:
+        notes.append(f"'{path}' gives its axes in {', '.join(converted)}: spacing and origin were converted to mm")
+    if None in units:
+        notes.append(f"'{path}' gives no unit for some of its axes: they are taken as millimetres")
+    spacing, origin = scale * millimetres, offset * millimetres
+    return tuple(float(s) for s in spacing[::-1]), tuple(float(o) for o in origin[::-1]), notes
 
 
 def _check_store_files(store: Path) -> None:

@@ -2,7 +2,7 @@
 
 import os
 from pathlib import Path
-from typing import Optional, Union
+from typing import Callable, Optional, Union
 
 import numpy as np
 
@@ -27,13 +27,19 @@ def is_phantom_input(source: PathLike) -> bool:
 
 
 def load_input(
-    source: PathLike, *, phantom_size: int = DEFAULT_PHANTOM_SIZE, seed: int = 0, n_bins: Optional[int] = None
+    source: PathLike,
+    *,
+    phantom_size: int = DEFAULT_PHANTOM_SIZE,
+    seed: int = 0,
+    n_bins: Optional[int] = None,
+    warn: Optional[Callable[[str], None]] = None,
 ) -> Volume:
     """Read the input volume: a file or DICOM folder (see :func:`read_volume`), or the word ``phantom``.
 
     The phantom is centred on the RAS origin. The word ``phantom`` always means the phantom; write ``./phantom`` to
     read a file or folder of that name. Whatever the input, its size is checked against the memory available
-    (counting the design with ``n_bins`` bins) before its voxels are read or made.
+    (counting the design with ``n_bins`` bins) before its voxels are read or made. ``warn`` takes each warning line
+    of the read (see :func:`read_volume`).
 
     Raises:
         VolumeReadError: unreadable or unsupported input. UsageError: phantom size out of bounds. ValueError: bad
@@ -51,7 +57,7 @@ def load_input(
         dims = np.asarray(phantom.values.shape[::-1], dtype=float)
         origin = -0.5 * (dims - 1.0) * np.asarray(phantom.spacing)
         return Volume(phantom.values, phantom.spacing, tuple(origin), np.eye(3), PHANTOM_INPUT)
-    return read_volume(source, n_bins=n_bins)
+    return read_volume(source, n_bins=n_bins, warn=warn)
 
 
 def input_info(source: PathLike, volume: Volume) -> dict:

@@ -1,4 +1,5 @@
-"""How a failed read is reported: one line naming the file, never the C++ libraries' own printing.
+"""How a failed read is reported: one line naming the file, never the C++ libraries' own printing; and how a read
+that succeeded with something the user must know (a unit converted, an array chosen) says so: one warning line.
 
 VTK reports errors through its output window and its logger; ITK and teem also write straight to the process's
 standard error. During a read both are captured (VTK's messages as the renderer captures them, file descriptor 2 into
@@ -11,6 +12,7 @@ import re
 import stat
 import sys
 import tempfile
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -73,6 +75,15 @@ def itk_reason(text: str) -> str:
 def cannot_read(path: Path, reason: str) -> VolumeReadError:
     """The error for an unreadable input: ``Cannot read 'PATH': reason`` on one line."""
     return VolumeReadError(f"Cannot read '{path}': {' '.join(reason.split())}")
+
+
+class VolumeReadWarning(UserWarning):
+    """What a reader says of a volume it read: e.g. an array chosen for want of active scalars, a unit converted."""
+
+
+def python_warning(message: str) -> None:
+    """The readers' warning channel when the caller gives none (a ``warn`` callback): Python's warnings."""
+    warnings.warn(" ".join(message.split()), VolumeReadWarning, stacklevel=2)
 
 
 def regular_file(owner: Path, file: Path, role: str) -> Path:

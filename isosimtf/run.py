@@ -226,7 +226,7 @@ def _run_locked(
         started = time.perf_counter()
         progress.stage("read", str(source))
         n_bins = options.get("n_bins", DEFAULT_OPTIONS["n_bins"])
-        volume = load_input(source, phantom_size=phantom_size, seed=seed, n_bins=n_bins)
+        volume = load_input(source, phantom_size=phantom_size, seed=seed, n_bins=n_bins, warn=warning)
         timings = {"read": time.perf_counter() - started}
         info = input_info(source, volume)
         for message in _input_warnings(info, n_bins, volume.values):

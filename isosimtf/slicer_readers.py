@@ -20,7 +20,7 @@ from .headers import spacing_problem
 from .read_errors import cannot_read, captured_native_output, first_message, itk_reason
 
 #: File suffixes read by Slicer's ITK-based reader (lower case, longest first); a DICOM file may have any suffix.
-ITK_SUFFIXES = (".nii.gz", ".nrrd", ".nhdr", ".mha", ".mhd", ".nii", ".dcm")
+ITK_SUFFIXES = (".nii.gz", ".img.gz", ".nrrd", ".nhdr", ".mha", ".mhd", ".nii", ".hdr", ".img", ".dcm")
 
 
 @dataclass(frozen=True)
@@ -77,7 +77,10 @@ def _reader(files: tuple[Path, ...]) -> Any:
     return reader
 
 
-_FORMATS = {".nrrd": "NRRD", ".nhdr": "NRRD", ".mha": "MetaImage", ".mhd": "MetaImage", ".nii": "NIfTI", ".gz": "NIfTI"}
+_FORMATS = {
+    ".nrrd": "NRRD", ".nhdr": "NRRD", ".mha": "MetaImage", ".mhd": "MetaImage", ".nii": "NIfTI", ".gz": "NIfTI",
+    ".hdr": "NIfTI", ".img": "NIfTI",
+}  # fmt: skip
 
 
 def _reason(path: Path, texts: list[str]) -> str:

@@ -6,10 +6,12 @@ size before allocating), behind one entry point, :func:`read_volume`.
 Every reader returns a :class:`Volume`: the voxel values as a ``(K, J, I)`` array (slowest axis first, like
 ``slicer.util.arrayFromVolume``) and the spacing, origin and axis directions in Slicer's RAS world.
 
-- NRRD (``.nrrd``, ``.nhdr``), MetaImage (``.mha``, ``.mhd``), NIfTI (``.nii``, ``.nii.gz``), a DICOM file or a DICOM
-  series folder: Slicer's own reader (:mod:`.slicer_readers`, from PyPI's ``slicer-core``), so values and geometry are
-  what Slicer shows. A folder must hold one series; a DICOM file reads the series it belongs to.
-- ``.vti``: VTK's XML image reader; its coordinates are taken as RAS.
+- NRRD (``.nrrd``, ``.nhdr``), MetaImage (``.mha``, ``.mhd``), NIfTI (``.nii``, ``.nii.gz``, or a ``.hdr`` / ``.img``
+  pair), a DICOM file or a DICOM series folder: Slicer's own reader (:mod:`.slicer_readers`, from PyPI's
+  ``slicer-core``), so values and geometry are what Slicer shows. A folder must hold one series; a DICOM file reads
+  the series it belongs to. NIfTI-2, which Slicer's reader refuses, is read by it as the same header in NIfTI-1.
+- ``.vti``: VTK's XML image reader; its coordinates are taken as RAS. A file naming no active scalars is read from
+  its first point-data array, with a warning.
 - ``.npy``: its header is checked before the array is loaded (no pickles); spacing 1 mm, origin 0, no rotation.
 - Zarr and OME-Zarr stores, TIFF stacks, and raw NRRD / MetaImage too large for memory: read lazily as dask arrays
   (:mod:`.chunked_readers`), designed out of core.
@@ -19,16 +21,20 @@ Every reader returns a :class:`Volume`: the voxel values as a ``(K, J, I)`` arra
 Before any voxel is allocated, the size given by the header is checked: a 3-D scalar volume, no larger than the file
 can hold (a gzip stream expands at most about 1032 times), and small enough for the memory available
 (:mod:`IsoSimilarityTFLib.memory`). Any failure raises one error with a one-line message naming the file:
-:class:`VolumeReadError`, or :class:`InsufficientMemoryError` for a volume that does not fit.
+:class:`VolumeReadError`, or :class:`InsufficientMemoryError` for a volume that does not fit. What a user must know of
+a volume read (an array chosen, a unit converted) goes to the ``warn`` callback, one line each.
 """
 
+import contextlib
 import gzip
 import math
 import os
 import plistlib
 import struct
 import tarfile
+import tempfile
 import zlib
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Optional, Union
@@ -41,7 +47,7 @@ from IsoSimilarityTFLib.memory import check_memory
 
 from . import chunked_readers, headers, slicer_readers
 from .formatting import format_bytes
-from .read_errors import cannot_read, captured_native_output, first_message, regular_file
+from .read_errors import cannot_read, captured_native_output, first_message, python_warning, regular_file
 from .volume import Volume
 
 PathLike = Union[str, "os.PathLike[str]"]
@@ -58,9 +64,12 @@ __all__ = [
 ]
 
 SUPPORTED_TEXT = (
-    ".nrrd, .nhdr, .mha, .mhd, .nii, .nii.gz, .vti, .npy, .inv3, .tif, .tiff, a Zarr store, a folder of TIFF planes, "
-    "a DICOM file or a DICOM series folder"
+    ".nrrd, .nhdr, .mha, .mhd, .nii, .nii.gz, .hdr/.img (NIfTI pair), .vti, .npy, .inv3, .tif, .tiff, a Zarr store, "
+    "a folder of TIFF planes, a DICOM file or a DICOM series folder"
 )
+
+#: The warning channel of the readers: called with each warning line.
+Warn = Callable[[str], None]
 
 
 #: Largest expansion of a deflate (gzip, zlib) stream: a file of N bytes holds at most about 1032 N bytes of voxels.
@@ -89,12 +98,14 @@ _REAL_DATASETS: dict[str, tuple[str, ...]] = {
 _INV3_AXIAL_DIRECTIONS = np.diag([-1.0, 1.0, 1.0])
 
 
-def read_volume(path: PathLike, *, n_bins: Optional[int] = None) -> Volume:
+def read_volume(path: PathLike, *, n_bins: Optional[int] = None, warn: Optional[Warn] = None) -> Volume:
     """Read a scalar 3-D volume from ``path`` (see the module docstring for formats).
 
     Args:
         path: a volume file, a DICOM file, or a folder holding one DICOM series.
         n_bins: the bins the volume will be designed with: the memory check then also counts the design's needs.
+        warn: called with each warning line about the volume read (default: Python's warnings,
+            :class:`~.read_errors.VolumeReadWarning`).
 
     Raises:
         VolumeReadError: the path is missing, of an unsupported kind, corrupt or truncated, or holds a 2-D, 4-D or
@@ -110,7 +121,7 @@ def read_volume(path: PathLike, *, n_bins: Optional[int] = None) -> Volume:
         raise cannot_read(
             path, f"unsupported file type '{''.join(path.suffixes) or path.name}' (expected {SUPPORTED_TEXT})"
         )
-    return reader.read(path, path.name if path.is_dir() else _stem(path), n_bins)
+    return reader.read(path, path.name if path.is_dir() else _stem(path), n_bins, warn or python_warning)
 
 
 @dataclass(frozen=True)
@@ -120,15 +131,16 @@ class Reader:
     Attributes:
         name: the format, as messages name it.
         probe: whether a path (an existing file or folder) is of this format; cheap (a suffix, a magic number).
-        read: ``read(path, volume name, n_bins)`` -> :class:`Volume`. It reads the header once, checks from it the
-            size (a 3-D scalar volume that the file can hold and the memory fits, :func:`_check_size`) before any
-            voxel is allocated, then reads the voxels (into memory, or lazily as a dask array when the format or
+        read: ``read(path, volume name, n_bins, warn)`` -> :class:`Volume`. It reads the header once, checks from it
+            the size (a 3-D scalar volume that the file can hold and the memory fits, :func:`_check_size`) before
+            any voxel is allocated, then reads the voxels (into memory, or lazily as a dask array when the format or
             the size asks for it), or raises one :class:`VolumeReadError` (or ``InsufficientMemoryError``) line.
+            ``warn`` takes each warning line.
     """
 
     name: str
     probe: Callable[[Path], bool]
-    read: Callable[[Path, str, Optional[int]], Volume]
+    read: Callable[[Path, str, Optional[int], Warn], Volume]
 
 
 def reader_for(path: Path) -> Optional[Reader]:
@@ -144,7 +156,9 @@ def _read_nrrd_metaimage_nifti(path: Path, name: str, n_bins: Optional[int]) -> 
     stored = headers.stored_voxels(path)  # None for NIfTI
     if chunked_readers.reads_chunked(path, n_bins, stored):
         return chunked_readers.read_chunked(path, stored)
-    return _read_with_slicer(path, (path,), name, n_bins, stored)
+    # A NIfTI's storage is checked first: Slicer's header pass reads its extensions into memory.
+    nifti = _nifti_layout(path) if path.name.lower().endswith(NIFTI_SUFFIXES) else None
+    return _read_with_slicer(path, (path,), name, n_bins, stored, nifti)
 
 
 def _suffix(*suffixes: str) -> Callable[[Path], bool]:
@@ -171,7 +185,7 @@ def real_dataset_path(name: str) -> Optional[Path]:
 
 
 def _stem(path: Path) -> str:
-    suffix = ".nii.gz" if path.name.lower().endswith(".nii.gz") else path.suffix
+    suffix = next((s for s in (".nii.gz", ".img.gz") if path.name.lower().endswith(s)), path.suffix)
     return path.name[: -len(suffix)] if suffix and len(suffix) < len(path.name) else path.name
 
 
@@ -215,38 +229,43 @@ def _read_with_slicer(
     name: str,
     n_bins: Optional[int],
     stored: Optional[headers.StoredVoxels] = None,
+    nifti: Optional["_NiftiLayout"] = None,
 ) -> Volume:
     """Read with Slicer's storage node, or (64-bit integers) exactly from the raw file; ``stored``: the storage
-    fields of a NRRD / MetaImage header (None for other formats and DICOM)."""
-    # A NIfTI's storage is checked first: Slicer's header pass reads its extensions into memory.
-    nifti = _nifti_layout(path) if path.name.lower().endswith((".nii", ".nii.gz")) else None
-    header = slicer_readers.read_header(path, files)
+    fields of a NRRD / MetaImage header, ``nifti``: the storage of a NIfTI input (None for other formats)."""
     if stored is not None:
         on_disk = stored.stored_bytes
+    elif nifti is not None:
+        on_disk = sum(f.stat().st_size for f in {nifti.header, nifti.data})
     elif path.name.lower().endswith(headers.RAW_HEADER_SUFFIXES):
         on_disk = None  # a list or pattern of data files: only the memory bound applies
     else:
         on_disk = sum(f.stat().st_size for f in files)
-    held = nifti.extension_bytes if nifti is not None else 0
-    _check_size(path, header.dimensions, header.components, header.dtype, n_bins, on_disk, held)
-    if stored is not None and stored.size_mismatch:
-        raise cannot_read(path, stored.size_mismatch)
-    if nifti is not None:
-        _check_nifti(path, header.dimensions, nifti)
-    if stored is not None and stored.dtype.kind in "iu" and stored.dtype.itemsize == 8:
-        # Slicer's reader turns 64-bit integers into float32 (exact only below 2^24): read the stored integers.
-        if not stored.raw:
-            raise cannot_read(
-                path,
-                f"it holds {stored.dtype.name} voxels, which Slicer's reader rounds to float32, and they are "
-                "compressed: save them uncompressed (raw), or as int32 or float64",
-            )
-        _check_size(path, header.dimensions, 1, stored.dtype, n_bins, stored.stored_bytes)
-        values, ijk_to_ras = chunked_readers.raw_values(path, stored, chunked_readers.raw_array, header)
-        return Volume.from_ijk_to_ras(values, ijk_to_ras, name)
-    values, ijk_to_ras = slicer_readers.read_image(path, header)
+    with _slicer_files(path, files, nifti) as files:
+        header = slicer_readers.read_header(path, files)
+        held = nifti.extension_bytes if nifti is not None else 0
+        _check_size(path, header.dimensions, header.components, header.dtype, n_bins, on_disk, held)
+        if stored is not None and stored.size_mismatch:
+            raise cannot_read(path, stored.size_mismatch)
+        if nifti is not None:
+            _check_nifti(path, header.dimensions, nifti)
+        if stored is not None and stored.dtype.kind in "iu" and stored.dtype.itemsize == 8:
+            # Slicer's reader turns 64-bit integers into float32 (exact only below 2^24): read the stored integers.
+            if not stored.raw:
+                raise cannot_read(
+                    path,
+                    f"it holds {stored.dtype.name} voxels, which Slicer's reader rounds to float32, and they are "
+                    "compressed: save them uncompressed (raw), or as int32 or float64",
+                )
+            _check_size(path, header.dimensions, 1, stored.dtype, n_bins, stored.stored_bytes)
+            values, ijk_to_ras = chunked_readers.raw_values(path, stored, chunked_readers.raw_array, header)
+            return Volume.from_ijk_to_ras(values, ijk_to_ras, name)
+        values, ijk_to_ras = slicer_readers.read_image(path, header)
     return Volume.from_ijk_to_ras(values, ijk_to_ras, name)
 
+
+#: NIfTI inputs: one file, or the header (``.hdr``) or the voxels (``.img``, ``.img.gz``) of a pair.
+NIFTI_SUFFIXES = (".nii", ".nii.gz", ".hdr", ".img", ".img.gz")
 
 #: NIfTI datatype codes of 64-bit integers (NIFTI_TYPE_INT64, NIFTI_TYPE_UINT64).
 _NIFTI_INT64 = {1024: "int64", 1280: "uint64"}
@@ -260,59 +279,111 @@ MAX_NIFTI_EXTENSION_BYTES = 64 << 20
 
 @dataclass(frozen=True)
 class _NiftiLayout:
-    """Where a NIfTI file keeps its voxels: they start at ``offset`` (``vox_offset``) after the header's
-    ``header_bytes`` (348 or 540) and its extensions, take ``bitpix`` bits each, and the file (inflated) holds
-    ``size`` bytes."""
+    """Where a NIfTI input keeps its header and voxels.
 
-    bitpix: int
+    Attributes:
+        header: the file holding the header (the ``.nii``, or the ``.hdr`` of a pair); head: its first bytes (the
+            whole header), endian: its byte order (``"<"`` or ``">"``); version: 1 or 2.
+        data: the file holding the voxels (the same, or the ``.img`` of a pair). They start at byte ``offset``
+            (``vox_offset``) of it, once inflated ``size`` bytes long, and take ``bitpix`` bits each.
+        extension_bytes: bytes of header extensions, read into memory by Slicer's reader.
+    """
+
+    header: Path
+    head: bytes
+    endian: str
+    version: int
+    data: Path
     offset: int
-    header_bytes: int
     size: int
+    bitpix: int
+    extension_bytes: int
 
-    @property
-    def extension_bytes(self) -> int:
-        """Bytes between the header and the voxels: the extensions, read into memory by Slicer's reader."""
-        return self.offset - self.header_bytes
+
+def _nifti_files(path: Path) -> tuple[Path, Path]:
+    """The header file and the voxels' file of a NIfTI input: the file itself, or the ``.hdr`` and the ``.img`` (or
+    ``.img.gz``, looked for in that order, as the NIfTI library does) of a pair, either given.
+
+    Raises:
+        VolumeReadError: the other file of a pair is missing or not a regular file; the ``.img.gz`` given is not the
+            file Slicer's reader would read (a ``.img`` beside it).
+    """
+    lower = path.name.lower()
+    if lower.endswith((".nii", ".nii.gz")):
+        return path, path
+    stem = path.name[: -len(next(s for s in (".hdr", ".img.gz", ".img") if lower.endswith(s)))]
+    upper = path.name[len(stem) + 1 : len(stem) + 4].isupper()  # the library keeps the case of the suffix given
+    header = path if lower.endswith(".hdr") else path.with_name(stem + (".HDR" if upper else ".hdr"))
+    if not header.exists():
+        raise cannot_read(path, f"its header '{header.name}' does not exist: a NIfTI pair is read from its .hdr")
+    candidates = [path.with_name(stem + suffix) for suffix in ((".IMG", ".IMG.gz") if upper else (".img", ".img.gz"))]
+    data = next((file for file in candidates if file.exists()), None)
+    if data is None:
+        raise cannot_read(path, f"its voxel file '{candidates[0].name}' does not exist (the .img of the .hdr)")
+    if path not in (header, data):
+        raise cannot_read(
+            path, f"Slicer's reader reads the voxels of '{header.name}' from '{data.name}', not this file"
+        )
+    return regular_file(path, header, "its header"), regular_file(path, data, "its voxel file")
+
+
+def _inflated_bytes(path: Path, file: Path) -> int:
+    """Bytes of ``file`` once inflated: a ``.gz`` is decompressed as a stream (never held in memory), which also finds
+    a truncated or corrupt stream."""
+    if not file.name.lower().endswith(".gz"):
+        return file.stat().st_size
+    size = 0
+    try:
+        with gzip.open(file, "rb") as handle:
+            while True:
+                chunk = handle.read(1 << 22)
+                if not chunk:
+                    return size
+                size += len(chunk)
+    except (OSError, EOFError, zlib.error) as error:
+        raise cannot_read(path, f"the gzip stream is truncated or corrupt ({error})") from None
 
 
 def _nifti_layout(path: Path) -> _NiftiLayout:
-    """The storage of a NIfTI file, checked before Slicer's reader reads its header (and the extensions with it).
+    """The storage of a NIfTI input, checked before Slicer's reader reads its header (and the extensions with it).
 
     The voxels start at ``vox_offset`` and take ``bitpix`` bits each, the stored type: with ``scl_slope`` /
     ``scl_inter`` Slicer gives float32 values of int16 (or uint16, ...) voxels, so the bytes on disk are counted
     from the header's own type, never from the type Slicer returns. NIfTI-1: datatype, bitpix int16 at bytes 70, 72;
-    vox_offset float32 at 108. NIfTI-2: int16 at 12, 14; int64 at 168. A ``.nii.gz`` is decompressed as a stream
-    (never held in memory) to count its bytes and to find a truncated or corrupt stream.
+    vox_offset float32 at 108; magic at 344. NIfTI-2: int16 at 12, 14; int64 at 168; magic at 4.
 
     Raises:
-        VolumeReadError: a truncated or corrupt gzip stream, not a NIfTI header, 64-bit integers (which Slicer's
-            reader rounds to float32), a bad ``bitpix`` or ``vox_offset``, voxels starting past the end of the file,
-            or extensions larger than :data:`MAX_NIFTI_EXTENSION_BYTES`.
+        VolumeReadError: a truncated or corrupt gzip stream, not a NIfTI header (an Analyze 7.5 pair), 64-bit integers
+            (which Slicer's reader rounds to float32), a bad ``bitpix`` or ``vox_offset``, voxels starting past the
+            end of the file, or extensions larger than :data:`MAX_NIFTI_EXTENSION_BYTES`.
     """
-    opener = gzip.open if path.name.lower().endswith(".gz") else open
+    header, data = _nifti_files(path)
+    pair = header != data
     try:
-        with opener(path, "rb") as handle:
-            head = handle.read(176)
-            size = len(head)
-            while True:
-                chunk = handle.read(1 << 22)
-                if not chunk:
-                    break
-                size += len(chunk)
+        with (gzip.open if header.name.lower().endswith(".gz") else open)(header, "rb") as handle:
+            head = handle.read(540)
     except (OSError, EOFError, zlib.error) as error:
         raise cannot_read(path, f"the gzip stream is truncated or corrupt ({error})") from None
-    if len(head) < 176:
+    if len(head) < 348:
         raise cannot_read(path, "the NIfTI header is truncated")
-    layouts = {348: (70, "f", 108), 540: (12, "q", 168)}  # sizeof_hdr: byte of datatype, type and byte of vox_offset
+    # sizeof_hdr: byte of datatype, type and byte of vox_offset, byte of magic
+    layouts = {348: (70, "f", 108, 344), 540: (12, "q", 168, 4)}
     for endian in "<>":
         sizeof_hdr = struct.unpack_from(endian + "i", head)[0]
-        if sizeof_hdr in layouts:
-            at_type, kind, at_offset = layouts[sizeof_hdr]
+        if sizeof_hdr in layouts and len(head) >= sizeof_hdr:
+            at_type, kind, at_offset, at_magic = layouts[sizeof_hdr]
             datatype, bitpix = struct.unpack_from(endian + "hh", head, at_type)
             vox_offset = struct.unpack_from(endian + kind, head, at_offset)[0]
+            magic = head[at_magic : at_magic + 4]
             break
     else:
         raise cannot_read(path, "not a NIfTI-1 or NIfTI-2 header")
+    if pair and magic not in (b"ni1\0", b"ni2\0"):
+        raise cannot_read(
+            path,
+            f"'{header.name}' is an Analyze 7.5 header (no NIfTI magic 'ni1'), whose orientation readers guess (left "
+            "and right may be swapped): convert it to NIfTI or NRRD where its orientation is known",
+        )
     if datatype in _NIFTI_INT64:
         raise cannot_read(
             path,
@@ -321,9 +392,14 @@ def _nifti_layout(path: Path) -> _NiftiLayout:
         )
     if bitpix <= 0 or bitpix % 8:
         raise cannot_read(path, f"its header gives {bitpix} bits per voxel")
-    if not math.isfinite(vox_offset):
+    if not math.isfinite(vox_offset) or vox_offset < 0:
         raise cannot_read(path, f"its header gives vox_offset {vox_offset}")
-    layout = _NiftiLayout(bitpix, max(int(vox_offset), sizeof_hdr), sizeof_hdr, size)
+    # The voxels of one file start after its header even when vox_offset says less; a pair's .img holds only voxels.
+    offset = int(vox_offset) if pair else max(int(vox_offset), sizeof_hdr)
+    extension_bytes = header.stat().st_size - sizeof_hdr if pair else offset - sizeof_hdr
+    size = _inflated_bytes(path, data)
+    version = 1 if sizeof_hdr == 348 else 2
+    layout = _NiftiLayout(header, head[:sizeof_hdr], endian, version, data, offset, size, bitpix, extension_bytes)
     if layout.offset > size:
         raise cannot_read(
             path, f"it is truncated: its voxels start at byte {layout.offset} (vox_offset), past its end ({size} bytes)"
@@ -346,7 +422,78 @@ def _check_nifti(path: Path, dimensions: tuple[int, int, int], layout: _NiftiLay
         raise cannot_read(path, f"it is truncated: {voxel_bytes} bytes of voxel data expected, {found} found")
 
 
-def _read_vti(path: Path, name: str, n_bins: Optional[int]) -> Volume:
+#: The NIfTI-2 header fields Slicer's reader reads for the voxels and their geometry, as NIfTI-1 holds them: (NIfTI-1
+#: format and byte, NIfTI-2 format and byte). The others (descriptions, slice timing, display range) decide neither.
+_NIFTI2_AS_NIFTI1 = (
+    ("8h", 40, "8q", 16),  # dim
+    ("h", 68, "i", 504),  # intent_code
+    ("2h", 70, "2h", 12),  # datatype, bitpix
+    ("8f", 76, "8d", 104),  # pixdim
+    ("2f", 112, "2d", 176),  # scl_slope, scl_inter
+    ("B", 123, "i", 500),  # xyzt_units
+    ("2h", 252, "2i", 344),  # qform_code, sform_code
+    ("18f", 256, "18d", 352),  # quatern_b, c, d, qoffset_x, y, z, srow_x, srow_y, srow_z
+)
+
+
+def _nifti1_header(path: Path, layout: _NiftiLayout) -> bytes:
+    """The NIfTI-1 pair header (magic ``ni1``) of a NIfTI-2 header: the same fields, narrower (float64 to float32,
+    about 7 significant digits, as a NIfTI-1 file holds them); the voxels stay where they are (``vox_offset``).
+
+    Raises:
+        VolumeReadError: an axis longer than NIfTI-1's 32767 voxels, or a field out of NIfTI-1's range.
+    """
+    endian, head = layout.endian, layout.head
+    dims = struct.unpack_from(endian + "8q", head, 16)
+    if 1 <= dims[0] <= 7 and max(dims[1 : dims[0] + 1]) > 32767:
+        size = " x ".join(str(d) for d in dims[1 : dims[0] + 1])
+        raise cannot_read(
+            path,
+            f"it is NIfTI-2 of {size} voxels; Slicer's reader reads NIfTI-1, at most 32767 voxels an axis: save it "
+            "as NRRD",
+        )
+    out = bytearray(348)
+    try:
+        for narrow, at, wide, at_wide in _NIFTI2_AS_NIFTI1:
+            struct.pack_into(endian + narrow, out, at, *struct.unpack_from(endian + wide, head, at_wide))
+        struct.pack_into(endian + "i", out, 0, 348)
+        struct.pack_into(endian + "f", out, 108, layout.offset)
+    except (struct.error, OverflowError) as error:
+        raise cannot_read(
+            path, f"its NIfTI-2 header holds a value NIfTI-1, which Slicer reads, cannot ({error})"
+        ) from None
+    if struct.unpack_from(endian + "f", out, 108)[0] != layout.offset:
+        raise cannot_read(path, f"its voxels start at byte {layout.offset}, which a NIfTI-1 header cannot say exactly")
+    out[344:348] = b"ni1\0"
+    return bytes(out)
+
+
+@contextlib.contextmanager
+def _slicer_files(path: Path, files: tuple[Path, ...], nifti: Optional[_NiftiLayout]) -> Iterator[tuple[Path, ...]]:
+    """The files Slicer's reader reads: ``files``, or a NIfTI's header file (a pair is read from its ``.hdr``).
+
+    Slicer's reader refuses NIfTI-2, which differs from NIfTI-1 only in the width of its header fields: it reads one
+    as the same header in NIfTI-1 (:func:`_nifti1_header`), written as a pair in a temporary folder whose ``.img``
+    links to the voxels' file. Values and geometry are then Slicer's, by the rules of its NIfTI reader.
+    """
+    if nifti is None or nifti.version == 1:
+        yield files if nifti is None else (nifti.header,)
+        return
+    header = _nifti1_header(path, nifti)
+    with tempfile.TemporaryDirectory(prefix="isosimtf-nifti2-") as folder:
+        (Path(folder) / "volume.hdr").write_bytes(header + bytes(4))  # no extensions
+        voxels = Path(folder) / ("volume.img.gz" if nifti.data.name.lower().endswith(".gz") else "volume.img")
+        try:
+            os.symlink(nifti.data.resolve(), voxels)
+        except OSError:  # Windows allows symbolic links only with a privilege; a hard link needs none
+            try:
+                os.link(nifti.data.resolve(), voxels)
+            except OSError as error:
+                raise cannot_read(path, f"its voxels cannot be linked for Slicer's reader ({error})") from None
+        yield (Path(folder) / "volume.hdr",)
+
+
+def _read_vti(path: Path, name: str, n_bins: Optional[int], warn: Warn) -> Volume:
     from vtkmodules.util.numpy_support import get_numpy_array_type, vtk_to_numpy
     from vtkmodules.vtkCommonDataModel import vtkDataObject, vtkDataSetAttributes
     from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline
@@ -363,6 +510,13 @@ def _read_vti(path: Path, name: str, n_bins: Optional[int]) -> Volume:
     scalars = vtkDataObject.GetActiveFieldInformation(
         info, vtkDataObject.FIELD_ASSOCIATION_POINTS, vtkDataSetAttributes.SCALARS
     )
+    arrays = info.Get(vtkDataObject.POINT_DATA_VECTOR())
+    fields = [arrays.GetInformationObject(n) for n in range(arrays.GetNumberOfInformationObjects())] if arrays else []
+    first_array = scalars is None and bool(
+        fields
+    )  # no active scalars: the first point-data array, as VTK tools take it
+    if first_array:
+        scalars = fields[0]
     if reader.GetErrorCode() or extent is None or scalars is None:
         raise cannot_read(path, first_message(texts) or "the file holds no point scalars")
     dimensions = tuple(int(extent[2 * a + 1] - extent[2 * a] + 1) for a in range(3))
@@ -372,7 +526,8 @@ def _read_vti(path: Path, name: str, n_bins: Optional[int]) -> Volume:
     with captured_native_output() as texts:
         reader.Update()
     image = reader.GetOutput()
-    array = image.GetPointData().GetScalars() if image is not None else None
+    point_data = image.GetPointData() if image is not None else None
+    array = None if point_data is None else point_data.GetArray(0) if first_array else point_data.GetScalars()
     i, j, k = dimensions
     if reader.GetErrorCode() or array is None or array.GetNumberOfValues() != i * j * k or first_message(texts):
         raise cannot_read(path, f"the voxel data are truncated or corrupt ({first_message(texts) or 'no scalars'})")
@@ -383,6 +538,10 @@ def _read_vti(path: Path, name: str, n_bins: Optional[int]) -> Volume:
     # VTK places index (i, j, k) of the extent at origin + direction * spacing * (i, j, k): the first voxel is at the
     # extent's start, not at the origin, when the extent does not start at 0.
     ijk_to_ras[:3, 3] = np.asarray(image.GetOrigin()) + ijk_to_ras[:3, :3] @ np.asarray(image.GetExtent()[::2], float)
+    if first_array:
+        names = [str(field.Get(vtkDataObject.FIELD_NAME())) for field in fields]
+        listed = f" (of {len(names)}: {', '.join(names)})" if len(names) > 1 else ""
+        warn(f"'{path}' names no active point scalars: its first point-data array, '{names[0]}'{listed}, was read")
     return Volume.from_ijk_to_ras(vtk_to_numpy(array).reshape(k, j, i), ijk_to_ras, name)
 
 
@@ -607,15 +766,21 @@ def _member_bytes(archive: tarfile.TarFile, member: tarfile.TarInfo) -> bytes:
 #: Every input format, probed in this order (a DICOM file may have any suffix, so it comes before the suffixes).
 READERS: tuple[Reader, ...] = (
     Reader(
-        "Zarr or TIFF", chunked_readers.is_chunked_format, lambda path, name, n_bins: chunked_readers.read_chunked(path)
+        "Zarr or TIFF",
+        chunked_readers.is_chunked_format,
+        lambda path, name, n_bins, warn: chunked_readers.read_chunked(path, warn=warn),
     ),
     Reader(
         "DICOM",
         lambda path: path.is_dir() or slicer_readers.is_dicom_file(path),
-        lambda path, name, n_bins: _read_with_slicer(path, slicer_readers.dicom_series(path), name, n_bins),
+        lambda path, name, n_bins, warn: _read_with_slicer(path, slicer_readers.dicom_series(path), name, n_bins),
     ),
-    Reader(".npy", _suffix(".npy"), _read_npy),
-    Reader("InVesalius", _suffix(".inv3"), _read_inv3),
+    Reader(".npy", _suffix(".npy"), lambda path, name, n_bins, warn: _read_npy(path, name, n_bins)),
+    Reader("InVesalius", _suffix(".inv3"), lambda path, name, n_bins, warn: _read_inv3(path, name, n_bins)),
     Reader("VTK image", _suffix(".vti"), _read_vti),
-    Reader("NRRD, MetaImage or NIfTI", _suffix(*slicer_readers.ITK_SUFFIXES), _read_nrrd_metaimage_nifti),
+    Reader(
+        "NRRD, MetaImage or NIfTI",
+        _suffix(*slicer_readers.ITK_SUFFIXES),
+        lambda path, name, n_bins, warn: _read_nrrd_metaimage_nifti(path, name, n_bins),
+    ),
 )
