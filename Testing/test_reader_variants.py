@@ -189,3 +189,16 @@ def test_ome_zarr_geometry_not_read_here_is_refused_in_one_line(
     assert cli.main([str(tmp_path / "v.ome.zarr"), "-o", str(tmp_path / "out"), "--no-render", "-q"]) == 2
     err = capfd.readouterr().err
     assert err.count("\n") == 1 and message in err, err
+
+
+@pytest.mark.parametrize("slope, warned", [(0.0, True), (1.0, False)])
+def test_a_nifti_with_slope_0_and_an_intercept_says_it_is_read_as_slicer_reads_it(tmp_path, slope, warned):
+    """The NIfTI standard (and nibabel) reads scl_slope 0 as "no scaling"; Slicer's reader still adds scl_inter.
+    The values follow Slicer; the warning says so, since the result rests on that rule."""
+    values = np.arange(4 * 5 * 6, dtype=np.int16).reshape(4, 5, 6)
+    path = tmp_path / "v.nii"
+    write_nifti(path, values, np.diag([1.0, 1.0, 1.0, 1.0]), version=1, slope=slope, inter=5.0)
+    messages = []
+    volume = read_volume(path, warn=messages.append)
+    np.testing.assert_allclose(np.asarray(volume.values), values + 5.0)  # Slicer's reading, in both cases
+    assert any("scl_slope 0" in m and "scl_inter 5" in m for m in messages) is warned

@@ -148,7 +148,9 @@ def reader_for(path: Path) -> Optional[Reader]:
     return next((reader for reader in READERS if reader.probe(path)), None)
 
 
-def _read_nrrd_metaimage_nifti(path: Path, name: str, n_bins: Optional[int]) -> Volume:
+def _read_nrrd_metaimage_nifti(
+    path: Path, name: str, n_bins: Optional[int], warn: Optional[Warn] = None
+) -> Volume:
     """NRRD, MetaImage, NIfTI: Slicer's reader, or the lazy raw reader for a raw file too large for memory."""
     headers.check_data_files(path)
     # The storage fields of a NRRD / MetaImage header, parsed once for the lazy-or-not choice, the size bound and
@@ -158,6 +160,9 @@ def _read_nrrd_metaimage_nifti(path: Path, name: str, n_bins: Optional[int]) -> 
         return chunked_readers.read_chunked(path, stored)
     # A NIfTI's storage is checked first: Slicer's header pass reads its extensions into memory.
     nifti = _nifti_layout(path) if path.name.lower().endswith(NIFTI_SUFFIXES) else None
+    if nifti is not None and warn is not None:
+        for message in _nifti_warnings(path, nifti):
+            warn(message)
     return _read_with_slicer(path, (path,), name, n_bins, stored, nifti)
 
 
@@ -412,6 +417,19 @@ def _nifti_layout(path: Path) -> _NiftiLayout:
             "memory): remove them, e.g. save the volume again from Slicer",
         )
     return layout
+
+
+def _nifti_warnings(path: Path, layout: _NiftiLayout) -> list[str]:
+    """Where the values Slicer's reader gives rest on a rule the NIfTI standard does not share: ``scl_slope`` 0 means
+    "no scaling" in the standard (and to nibabel), but Slicer's reader still adds ``scl_inter``."""
+    slope, intercept = struct.unpack_from(layout.endian + ("2f" if layout.version == 1 else "2d"), layout.head,
+                                          112 if layout.version == 1 else 176)  # fmt: skip
+    if slope == 0 and intercept != 0 and np.isfinite(intercept):
+        return [
+            f"'{path.name}' has scl_slope 0 (no scaling, by the NIfTI standard) and scl_inter {intercept:g}: its "
+            f"values are read as Slicer reads them, {intercept:g} added to every voxel"
+        ]
+    return []
 
 
 def _check_nifti(path: Path, dimensions: tuple[int, int, int], layout: _NiftiLayout) -> None:
@@ -781,6 +799,6 @@ READERS: tuple[Reader, ...] = (
     Reader(
         "NRRD, MetaImage or NIfTI",
         _suffix(*slicer_readers.ITK_SUFFIXES),
-        lambda path, name, n_bins, warn: _read_nrrd_metaimage_nifti(path, name, n_bins),
+        lambda path, name, n_bins, warn: _read_nrrd_metaimage_nifti(path, name, n_bins, warn),
     ),
 )
