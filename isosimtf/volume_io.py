@@ -148,9 +148,7 @@ def reader_for(path: Path) -> Optional[Reader]:
     return next((reader for reader in READERS if reader.probe(path)), None)
 
 
-def _read_nrrd_metaimage_nifti(
-    path: Path, name: str, n_bins: Optional[int], warn: Optional[Warn] = None
-) -> Volume:
+def _read_nrrd_metaimage_nifti(path: Path, name: str, n_bins: Optional[int], warn: Optional[Warn] = None) -> Volume:
     """NRRD, MetaImage, NIfTI: Slicer's reader, or the lazy raw reader for a raw file too large for memory."""
     headers.check_data_files(path)
     # The storage fields of a NRRD / MetaImage header, parsed once for the lazy-or-not choice, the size bound and
