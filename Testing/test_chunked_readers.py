@@ -13,6 +13,7 @@ from IsoSimilarityTFLib import memory
 from IsoSimilarityTFLib.chunked import is_dask_array
 from isosimtf import chunked_readers, cli, headers, run
 from isosimtf.phantom import head_phantom
+from isosimtf.read_errors import VolumeReadWarning
 from isosimtf.rendering import slicer_core_available
 from isosimtf.volume_io import Volume, read_volume
 
@@ -159,7 +160,8 @@ def test_zarr_array_and_ome_zarr_level_0(tmp_path: Path) -> None:
             "datasets": [{"path": "0", "coordinateTransformations": scale}, {"path": "1"}],
         }
     ]
-    ome = read_volume(tmp_path / "image.ome.zarr")
+    with pytest.warns(VolumeReadWarning, match="gives no unit for some of its axes: they are taken as millimetres"):
+        ome = read_volume(tmp_path / "image.ome.zarr")
     np.testing.assert_array_equal(np.asarray(ome.values), values)
     assert ome.spacing == (0.7, 1.3, 2.1)
 
@@ -323,7 +325,10 @@ def test_ome_zarr_micrometres_become_millimetres(tmp_path: Path) -> None:
     group.attrs["multiscales"] = [
         {"version": "0.4", "axes": axes, "datasets": [{"path": "0", "coordinateTransformations": scale}]}
     ]
-    np.testing.assert_allclose(read_volume(tmp_path / "um.ome.zarr").spacing, (0.00025, 0.0005, 0.002))
+    messages = []
+    volume = read_volume(tmp_path / "um.ome.zarr", warn=messages.append)
+    np.testing.assert_allclose(volume.spacing, (0.00025, 0.0005, 0.002))
+    assert len(messages) == 1 and "converted to mm" in messages[0]
     axes[0]["unit"] = "parsec"
     group.attrs["multiscales"] = [
         {"version": "0.4", "axes": axes, "datasets": [{"path": "0", "coordinateTransformations": scale}]}
