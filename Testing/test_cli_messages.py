@@ -96,3 +96,19 @@ def test_advice_with_two_options_and_numbers_is_in_the_command_spelling() -> Non
     """Before: 'raise max_iter or damping (e.g. max_iter=1000, damping=0.9)' came out half converted."""
     text = cli._cli_spelling("no exemplar; raise max_iter or damping (e.g. max_iter=1000, damping=0.9)")
     assert text == "no exemplar; raise --max-iter or --damping (e.g. --max-iter 1000, --damping 0.9)"
+
+
+@pytest.mark.parametrize("voxels, warned", [(2**30 - 1, False), (2**30 + 1, True)])
+def test_a_volume_of_billions_of_voxels_says_how_long_its_design_takes_before_it_starts(voxels, warned):
+    """Before: a 276-byte Zarr store declaring 10^12 voxels ran for hours without a word."""
+    from isosimtf.run import _input_warnings
+
+    warnings = _input_warnings({"shape": [1, 1, voxels], "spacing": [1.0, 1.0, 1.0]}, 256)
+    assert any("the design reads each once, which takes about" in w for w in warnings) is warned
+
+
+def test_the_estimate_of_a_trillion_voxels_is_in_hours():
+    from isosimtf.run import _input_warnings
+
+    (warning,) = _input_warnings({"shape": [10_000, 10_000, 10_000], "spacing": [1.0, 1.0, 1.0]}, 256)
+    assert "1e+12 voxels" in warning and "3.3 hours" in warning  # 12 ns per voxel

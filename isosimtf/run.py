@@ -357,6 +357,12 @@ def label_count(values: np.ndarray) -> Optional[int]:
 #: Voxels this many times longer along one axis than another (e.g. 0.05 x 0.05 x 40 mm, a thick-slice stack of
 #: fine images) render badly: the ray caster's steps follow the smallest spacing (issue 18, item 14).
 MAX_ANISOTROPY = 20.0
+#: Volumes of more voxels than this get an estimate of the time their design takes before it starts (a small Zarr
+#: store may declare 10^12 voxels): about ten seconds of work at the rate below.
+LONG_DESIGN_VOXELS = 2**30
+#: Seconds per voxel of a design read from disk in chunks: make bench's out-of-core runs (7.4 s for 1024^3 int16,
+#: 11.4 s for 1024^3 uint16 Zarr chunks: 7-11 ns per voxel), rounded up.
+SECONDS_PER_VOXEL = 1.2e-8
 
 
 def _input_warnings(info: dict, n_bins: int, values: Optional[np.ndarray] = None) -> list[str]:
@@ -376,12 +382,26 @@ def _input_warnings(info: dict, n_bins: int, values: Optional[np.ndarray] = None
             "along one axis than another: the pictures and Slicer's ray casting, which step by the smallest "
             "spacing, may come out dark or blocky; resample the volume to less anisotropic voxels for rendering"
         )
+    voxels = float(np.prod(info.get("shape") or [0], dtype=np.float64))
+    if voxels > LONG_DESIGN_VOXELS:
+        warnings.append(
+            f"the volume has {voxels:.3g} voxels: the design reads each once, which takes about "
+            f"{_duration(voxels * SECONDS_PER_VOXEL)} here (longer from a slow disk or network); Ctrl+C stops it"
+        )
     if n_bins > SLOW_CLUSTERING_BINS:
         warnings.append(
             f"affinity propagation on {n_bins} isovalues may take many minutes (its cost grows with the square of "
             f"--bins; the default is {DEFAULT_OPTIONS['n_bins']})"
         )
     return warnings
+
+
+def _duration(seconds: float) -> str:
+    """``seconds`` in the largest unit that keeps a number above 1: "40 s", "12 minutes", "3.5 hours", "2.1 days"."""
+    for unit, size in (("days", 86400.0), ("hours", 3600.0), ("minutes", 60.0)):
+        if seconds >= 2 * size:
+            return f"{seconds / size:.2g} {unit}"
+    return f"{seconds:.0f} s"
 
 
 def _design_warnings(result: RunResult) -> list[str]:
