@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from volume_writers import write_nifti
 
+from IsoSimilarityTFLib.errors import VolumeReadError
 from isosimtf import cli
 from isosimtf.read_errors import VolumeReadWarning
 from isosimtf.volume_io import read_volume
@@ -202,3 +203,28 @@ def test_a_nifti_with_slope_0_and_an_intercept_says_it_is_read_as_slicer_reads_i
     volume = read_volume(path, warn=messages.append)
     np.testing.assert_allclose(np.asarray(volume.values), values + 5.0)  # Slicer's reading, in both cases
     assert any("scl_slope 0" in m and "scl_inter 5" in m for m in messages) is warned
+
+
+def test_a_met_long_metaimage_reads_lazily_as_32_bit_integers(tmp_path):
+    """MetaIO's MET_LONG is 4 bytes (Slicer's reader reads it so); the lazy reader refused it as "not raw"."""
+    from isosimtf import chunked_readers, headers
+
+    values = (np.arange(4 * 5 * 6, dtype="<i4") * 1000 - 50_000).reshape(4, 5, 6)
+    path = tmp_path / "v.mha"
+    text = (
+        "ObjectType = Image\nNDims = 3\nBinaryData = True\nBinaryDataByteOrderMSB = False\nCompressedData = False\n"
+        "ElementSpacing = 1 1 1\nDimSize = 6 5 4\nElementType = MET_LONG\nElementDataFile = LOCAL\n"
+    )
+    path.write_bytes(text.encode() + values.tobytes())
+    stored = headers.stored_voxels(path)
+    assert stored is not None and stored.raw and stored.dtype == np.dtype("<i4")
+    np.testing.assert_array_equal(np.asarray(chunked_readers.read_chunked(path, stored).values), values)
+
+
+def test_a_bzip2_nrrd_is_refused_for_its_encoding_not_as_corrupt(tmp_path):
+    nrrd = pytest.importorskip("nrrd")
+    path = tmp_path / "v.nrrd"
+    nrrd.write(str(path), np.arange(4 * 5 * 6, dtype=np.int16).reshape(6, 5, 4), header={"encoding": "bzip2"})
+    with pytest.raises(VolumeReadError, match="cannot decode its encoding") as refused:
+        read_volume(path)
+    assert "corrupt" not in str(refused.value)

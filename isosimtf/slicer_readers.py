@@ -272,6 +272,8 @@ def read_image(path: Path, header: ImageHeader) -> tuple[np.ndarray, np.ndarray]
         messages = storage.GetUserMessages()
         first = messages.GetNthMessageText(0) if messages.GetNumberOfMessages() else ""
         detail = itk_reason(first).replace(str(header.files[0]), "the file") or _reason(header.files[0], texts)
+        if "encoding not available" in detail:  # e.g. bzip2, which NrrdIO is built without: the file may be fine
+            raise cannot_read(path, f"Slicer's reader cannot decode its encoding ({detail}): save it raw or gzip")
         raise cannot_read(path, f"the voxel data are truncated or corrupt ({detail})")
     matrix = vtkMatrix4x4()
     node.GetIJKToRASMatrix(matrix)
