@@ -4,22 +4,9 @@ Every synthetic generator runs at a small size: deterministic, with the labels i
 real volumes of ../shared/data are only read when that folder is there.
 """
 
-import importlib
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
-
-BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
-
-
-def _load(name):
-    """Import a module of benchmarks/ (its folder on sys.path, as when the scripts run)."""
-    if str(BENCHMARKS) not in sys.path:
-        sys.path.insert(0, str(BENCHMARKS))
-    return importlib.import_module(name)
-
+from test_compare import _load
 
 panel = _load("volume_panel")
 
