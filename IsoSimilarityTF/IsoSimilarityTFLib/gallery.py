@@ -300,7 +300,7 @@ def _dense_parts(context: LookContext) -> Made:
             (share / max(1.0 - share, 1e-12)) * (1.0 - aim) / aim,
         )
         opacities = np.where(others, opacities * min(factor, 1.0), opacities)
-    return _with_ramp_colors(context, colors, dense), list(opacities), list(visible)
+    return colors, list(opacities), list(visible)
 
 
 def _made(context: LookContext, name: str) -> Made:
@@ -356,7 +356,6 @@ def _see_through(context: LookContext) -> Made:
         points.append((x2, bulk_share(x2) - target))
     best = min(points, key=lambda p: abs(p[1]))[0]
     opacities = np.where(bulk, np.exp(best), opacities)
-    colors = _with_ramp_colors(context, colors, bulk | dense)
     return colors, list(opacities), list(visible)
 
 
@@ -375,7 +374,7 @@ def _thin_structures(context: LookContext) -> Made:
     rim_ids = np.flatnonzero(rim)[order]
     opacities[rim_ids] = np.maximum(opacities[rim_ids], ramp)
     visible = np.array(visible) | rim
-    return _with_ramp_colors(context, colors, rim), list(opacities), list(visible)
+    return colors, list(opacities), list(visible)
 
 
 def _all_tissues(context: LookContext) -> Made:
@@ -408,17 +407,8 @@ def _monotone(context: LookContext, by_class: bool) -> Made:
         for i, c in enumerate(by_size):
             colors[c] = list(PALETTE[i % len(PALETTE)])
     else:
-        colors = _with_ramp_colors(context, _default(context, "mr")[0], shown)
+        colors = _default(context, "mr")[0]
     return colors, opacities, list(shown)
-
-
-def _with_ramp_colors(context: LookContext, colors: list[list[float]], shown: np.ndarray) -> list[list[float]]:
-    """Colours where the classes newly shown get the ramp colour of their tissue (:func:`.look.default_look` gives
-    every foreground tissue one, shown or not)."""
-    tissue_colors = default_look(
-        list(context.classes), context.tissue_of_class, context.class_values, "mr", noise_sd=context.noise_sd
-    ).colors
-    return [tissue_colors[c] if shown[c] and colors[c] == BACKGROUND_GREY else colors[c] for c in range(len(colors))]
 
 
 _MAKERS: dict[str, Callable[[LookContext], Made]] = {
