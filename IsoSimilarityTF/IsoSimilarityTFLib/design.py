@@ -146,7 +146,7 @@ class TransferFunctionDesign:
     unit_distance: float = 1.0
     look_name: Optional[str] = None
     _gallery: Optional[list[GalleryLook]] = field(default=None, init=False, repr=False, compare=False)
-    # The current grouping's look context: the gallery reuses the renders its first look needed.
+    # The current grouping's look context (see look_context): the gallery reuses the renders its first look needed.
     _context: Optional[LookContext] = field(default=None, init=False, repr=False, compare=False)
 
     @property
@@ -270,34 +270,37 @@ class TransferFunctionDesign:
     def reset_look(self) -> None:
         """Back to the chosen look (:attr:`look_name`, by default the first click's) of the current grouping: its
         colours, opacities and visibility, made again from the classes (see :mod:`.gallery`)."""
-        self._gallery = None
-        context = self._context = self.look_context()
+        self._gallery = self._context = None  # a new grouping: new roles, new looks
+        context = self.look_context()
         first = first_look_name(context)
         look = make_look(self.look_name or first, context) or make_look(first, context)
         self._apply(look)
 
     # Looks ---------------------------------------------------------------------------------------------------------
     def look_context(self) -> LookContext:
-        """What every look of the current grouping is made from (the classes' roles decided once)."""
-        return LookContext.build(
-            classes=self.classes,
-            tissue_of_class=self.tissue_of_class,
-            class_values=class_mean_values(self.labels, self.bin_voxels, self.edges, len(self.classes)),
-            class_bins=self.class_bins,
-            labels=self.labels,
-            noise_sd=self.hierarchy.noise_sd,
-            preview=self.preview,
-            kind=self.kind,
-            colors=self.options.get("colors", DEFAULT_OPTIONS["colors"]),
-            max_classes=self.options.get("max_classes", DEFAULT_OPTIONS["max_classes"]),
-        )
+        """What every look of the current grouping is made from (the classes' roles decided once): made once per
+        grouping, with the renders and looks made from it."""
+        if self._context is None:
+            self._context = LookContext.build(
+                classes=self.classes,
+                tissue_of_class=self.tissue_of_class,
+                class_values=class_mean_values(self.labels, self.bin_voxels, self.edges, len(self.classes)),
+                class_bins=self.class_bins,
+                labels=self.labels,
+                noise_sd=self.hierarchy.noise_sd,
+                preview=self.preview,
+                kind=self.kind,
+                colors=self.options.get("colors", DEFAULT_OPTIONS["colors"]),
+                max_classes=self.options.get("max_classes", DEFAULT_OPTIONS["max_classes"]),
+            )
+        return self._context
 
     @property
     def looks(self) -> list[GalleryLook]:
         """The gallery: every look the data support, ranked, the first click first (see :mod:`.gallery`); made
         once per grouping."""
         if self._gallery is None:
-            self._gallery = gallery(self._context or self.look_context())
+            self._gallery = gallery(self.look_context())
         return self._gallery
 
     def use_look(self, name: str) -> None:
