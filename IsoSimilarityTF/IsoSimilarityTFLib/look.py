@@ -44,7 +44,7 @@ import numpy as np
 
 from .classes import PALETTE, IsovalueClass
 from .options import COLOR_SCHEMES, GRADIENT_OPACITY, KINDS  # noqa: F401 (GRADIENT_OPACITY: still importable here)
-from .roles import RULES
+from .roles import RULES, tissue_mean_bins
 from .visibility import Preview, enclosure, first_met, visibility_histogram
 
 # Tissue colour ramp, low to high intensity: dark red, tan, ivory, white (our own anchors, in 0..1).
@@ -229,10 +229,7 @@ def default_look(
     tissue_contact = np.bincount(tissue_of_class, weights=voxels * contact, minlength=n_tissues) / np.maximum(
         tissue_voxels, 1
     )
-    weight = np.maximum(voxels, 1e-9)  # an empty class still places its tissue
-    tissue_bin = np.bincount(tissue_of_class, weights=weight * class_bins, minlength=n_tissues) / np.maximum(
-        np.bincount(tissue_of_class, weights=weight, minlength=n_tissues), 1e-300
-    )
+    tissue_bin = tissue_mean_bins(tissue_of_class, voxels, class_bins, n_tissues)
     background_tissues = set(tissue_of_class[is_background].tolist())
     foreground = [t for t in range(n_tissues) if t not in background_tissues and tissue_voxels[t] > 0]
     total = float(sum(tissue_voxels[t] for t in foreground)) or 1.0

@@ -20,6 +20,7 @@ Roles, in the order they are decided (the first that applies):
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 
@@ -137,13 +138,10 @@ def dense_classes(
     """Ids of the classes of real tissues whose mean lies ``rules.dense_separation`` noise widths above the mean of
     the largest tissue (the background left out), ascending."""
     voxels = np.array([c.voxels for c in classes], dtype=np.float64)
-    weight = np.maximum(voxels, 1e-9)  # an empty class still places its tissue
     foreground = np.array([not c.background for c in classes])
     n_tissues = int(tissue_of_class.max()) + 1 if tissue_of_class.size else 0
     tissue_voxels = np.bincount(tissue_of_class, weights=voxels * foreground, minlength=n_tissues)
-    in_tissue = np.bincount(tissue_of_class, weights=weight * foreground, minlength=n_tissues)
-    tissue_bin = np.bincount(tissue_of_class, weights=weight * class_bins * foreground, minlength=n_tissues)
-    tissue_bin = tissue_bin / np.maximum(in_tissue, 1e-300)
+    tissue_bin = tissue_mean_bins(tissue_of_class, voxels, class_bins, n_tissues, counted=foreground)
     total = tissue_voxels.sum()
     if total <= 0:
         return []
@@ -151,3 +149,19 @@ def dense_classes(
     real = tissue_voxels[tissue_of_class] >= rules.real_share * total
     above = class_bins >= tissue_bin[largest] + rules.dense_separation * noise_sd
     return [int(c) for c in np.flatnonzero(real & above & foreground)]
+
+
+def tissue_mean_bins(
+    tissue_of_class: np.ndarray,
+    voxels: np.ndarray,
+    class_bins: np.ndarray,
+    n_tissues: int,
+    counted: Optional[np.ndarray] = None,
+) -> np.ndarray:
+    """``(n_tissues,)`` voxel-weighted mean bin of each tissue, over its classes (those of ``counted``, a
+    ``(n_classes,)`` mask, when given); a class without voxels still places its tissue (weight 1e-9)."""
+    weight = np.maximum(voxels, 1e-9)
+    if counted is not None:
+        weight = weight * counted
+    totals = np.bincount(tissue_of_class, weights=weight * class_bins, minlength=n_tissues)
+    return totals / np.maximum(np.bincount(tissue_of_class, weights=weight, minlength=n_tissues), 1e-300)
