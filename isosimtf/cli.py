@@ -21,8 +21,7 @@ from IsoSimilarityTFLib.errors import (
     OutputError,
     RenderError,
 )
-from IsoSimilarityTFLib.gallery import LOOK_NAMES
-from IsoSimilarityTFLib.options import OPTIONS, Option
+from IsoSimilarityTFLib.options import LOOK_NAMES, OPTIONS, Option
 
 from . import __version__
 from .console import ProgressPrinter, summary_text

@@ -97,6 +97,11 @@ _TEMPORARY_FILE = re.compile(re.escape(TEMPORARY_PREFIX) + r"\d+-(.+)")
 _STAGING_FOLDER = re.compile(re.escape(TEMPORARY_PREFIX) + r"staging-\d+-\w+")
 
 
+def look_file(name: str) -> str:
+    """The output file (relative name) of the look ``name``."""
+    return f"{LOOKS_FOLDER}/{name}.vp.json"
+
+
 def is_output_name(name: str) -> bool:
     """Whether ``name`` (relative to the output folder, ``/``-separated) is a file this tool writes: one of
     :data:`TOP_OUTPUTS`, ``looks/<look>.vp.json``, ``scene/scene.mrml`` or a file of ``scene/Data/``. A record naming
@@ -107,7 +112,7 @@ def is_output_name(name: str) -> bool:
     if len(parts) == 1:
         return name in TOP_OUTPUTS
     if parts[0] == LOOKS_FOLDER:
-        return len(parts) == 2 and parts[1].endswith(".vp.json") and parts[1][: -len(".vp.json")] in LOOK_NAMES
+        return name in {look_file(look) for look in LOOK_NAMES}
     return parts[0] == SCENE_FOLDER and (parts[1:] == ["scene.mrml"] or (len(parts) == 3 and parts[1] == "Data"))
 
 

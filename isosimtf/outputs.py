@@ -25,7 +25,15 @@ from IsoSimilarityTFLib.pictures import similarity_image
 from .console import ProgressPrinter
 from .figures import class_grid, tissue_label_lines
 from .formatting import value_decimals
-from .output_folder import LOOKS_FOLDER, OUTPUT_FILES, file_stamp, journal_output, save_scene, write_atomically
+from .output_folder import (
+    LOOKS_FOLDER,
+    OUTPUT_FILES,
+    file_stamp,
+    journal_output,
+    look_file,
+    save_scene,
+    write_atomically,
+)
 from .read_errors import captured_native_output, first_message
 from .volume import Volume
 
@@ -172,11 +180,6 @@ def write_data_files(result: RunResult) -> None:
         result.record(role, path)  # once complete
     write_looks(result)
     write_classes_json(result)
-
-
-def look_file(name: str) -> str:
-    """The output file (relative name) of the look ``name``."""
-    return f"{LOOKS_FOLDER}/{name}.vp.json"
 
 
 def write_looks(result: RunResult) -> None:

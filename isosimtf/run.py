@@ -13,8 +13,7 @@ from IsoSimilarityTFLib.chunked import is_dask_array
 from IsoSimilarityTFLib.design import STAGES as DESIGN_STAGES
 from IsoSimilarityTFLib.design import design_transfer_function
 from IsoSimilarityTFLib.errors import RenderError, UsageError
-from IsoSimilarityTFLib.gallery import LOOK_NAMES
-from IsoSimilarityTFLib.options import DEFAULT_OPTIONS
+from IsoSimilarityTFLib.options import DEFAULT_OPTIONS, LOOK_NAMES
 from IsoSimilarityTFLib.value_range import with_robust_range
 
 from .chunked_readers import preview_step, read_preview
@@ -26,6 +25,7 @@ from .output_folder import (
     check_output_path,
     check_outputs,
     end_journal,
+    look_file,
     previous_outputs,
     remove_stale,
 )
@@ -39,7 +39,6 @@ from .outputs import (
     OUTPUT_FILES,
     Preview,
     RunResult,
-    look_file,
     write_classes_json,
     write_data_files,
 )
