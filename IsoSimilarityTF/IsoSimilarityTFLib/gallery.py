@@ -35,7 +35,7 @@ import numpy as np
 from .classes import PALETTE, IsovalueClass
 from .look import BACKGROUND_GREY, bin_opacity_of, default_look
 from .options import LOOK_NAMES
-from .roles import RULES, LookRules, class_roles
+from .roles import RULES, LookRules, class_roles, tissue_mean_bins
 from .visibility import Preview, visibility_histogram
 
 # The visibility step stops within this of the light it aims to keep (its last round's measure, float32 sums).
@@ -501,10 +501,11 @@ def check_look(context: LookContext, look: GalleryLook) -> list[str]:
 def _densest_real_tissue(context: LookContext) -> Optional[int]:
     """The densest tissue holding ``rules.real_share`` of the non-background voxels (as :func:`.look.default_look`
     counts them), or None."""
-    voxels = np.array([0 if c.background else c.voxels for c in context.classes], dtype=np.float64)
-    tissue_voxels = np.bincount(context.tissue_of_class, weights=voxels, minlength=context.n_tissues)
+    counted = np.array([0 if c.background else c.voxels for c in context.classes], dtype=np.float64)
+    tissue_voxels = np.bincount(context.tissue_of_class, weights=counted, minlength=context.n_tissues)
     real = np.flatnonzero(tissue_voxels >= context.rules.real_share * max(tissue_voxels.sum(), 1))
     if real.size == 0:
         return None
-    means = [context.class_bins[context.tissue_of_class == t].mean() for t in real]
-    return int(real[int(np.argmax(means))])
+    voxels = np.array([c.voxels for c in context.classes], dtype=np.float64)
+    means = tissue_mean_bins(context.tissue_of_class, voxels, context.class_bins, context.n_tissues)
+    return int(real[int(np.argmax(means[real]))])
