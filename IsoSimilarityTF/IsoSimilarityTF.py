@@ -29,7 +29,19 @@ from slicer.ScriptedLoadableModule import (
 from slicer.util import VTKObservationMixin
 
 from IsoSimilarityTFLib.options import OPTIONS
-from IsoSimilarityTFLib.panel import JOB_DONE, JOB_VOLUME_REMOVED, PanelModel, PanelView, engine_options, gui_tag
+from IsoSimilarityTFLib.panel import (
+    CANCELLED,
+    DONE,
+    IDLE,
+    RUNNING,
+    RUNNING_CHILD,
+    RUNNING_HERE,
+    VOLUME_REMOVED,
+    PanelModel,
+    PanelView,
+    engine_options,
+    gui_tag,
+)
 from IsoSimilarityTFLib.session import AUTO_DETAIL, CLASS, TISSUE, DesignSession
 
 #
@@ -158,6 +170,10 @@ POLL_INTERVAL_MS = 100
 # Side of the similarity picture in the panel, in pixels (a multiple of 4: Qt image rows are 4-byte aligned).
 SIMILARITY_PICTURE_SIZE = 256
 
+# Side of a look's thumbnail on its button, in pixels (a multiple of 4), and buttons per row of the looks.
+LOOK_THUMBNAIL_SIZE = 64
+LOOKS_PER_ROW = 3
+
 
 def choiceLabels() -> dict:
     """Readable, translatable labels of the choice parameters' values, by parameter and value.
@@ -218,12 +234,9 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
         self._parameterNodeGuiTag = None
         self._pollTimer = None
         self.panel = None
-        # The tree's editing widgets by (level, id) of their row.
+        # The tree's editing widgets by (level, id) of their row, and the looks' buttons by name.
         self._rowWidgets = {}
-
-    @property
-    def _running(self) -> bool:
-        return self.panel is not None and self.panel.running
+        self._lookButtons = {}
 
     def setup(self) -> None:
         ScriptedLoadableModuleWidget.setup(self)
@@ -241,9 +254,6 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
         self._pollTimer = qt.QTimer()
         self._pollTimer.setInterval(POLL_INTERVAL_MS)
         self._pollTimer.connect("timeout()", self._pollJob)
-
-        self.addObserver(slicer.mrmlScene, slicer.mrmlScene.StartCloseEvent, self.onSceneStartClose)
-        self.addObserver(slicer.mrmlScene, slicer.mrmlScene.EndCloseEvent, self.onSceneEndClose)
         self._observeSelectionNode()
 
         self.ui.inputSelector.connect("nodeActivated(vtkMRMLNode*)", self.onInputVolumeActivated)
@@ -266,9 +276,13 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
         self.initializeParameterNode()
 
     def cleanup(self) -> None:
-        self._stopJob()
-        self.removeObservers()
+        """The widget is deleted (Slicer closes, or Reload): stop a design, and let go of the scene and of the
+        parameter node (on Slicer 5.8 and 5.10 only ``disconnectGui`` removes the wrapper's GUI observer)."""
+        if self._pollTimer is not None:
+            self._pollTimer.stop()
         self.panel.stop()
+        self.setParameterNode(None)
+        self.removeObservers()
 
     def enter(self) -> None:
         self.initializeParameterNode()
@@ -280,20 +294,15 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
     def onReload(self) -> None:
         """Reload the library too: Slicer's reload executes only this file, and would keep the old
         IsoSimilarityTFLib modules of sys.modules."""
-        self._stopJob()
         for name in list(sys.modules):
             if name == "IsoSimilarityTFLib" or name.startswith("IsoSimilarityTFLib."):
                 del sys.modules[name]
         ScriptedLoadableModuleWidget.onReload(self)
 
-    def onSceneStartClose(self, caller, event) -> None:
-        # A design under way would be written into the closing scene: stop it.
-        if self._running:
-            self._stopJob()
-            self._setRunning(False)
-        self.setParameterNode(None)  # the panel's state forgets the design (it observes the scene too)
+    def scene_closing(self) -> None:
+        self.setParameterNode(None)
 
-    def onSceneEndClose(self, caller, event) -> None:
+    def scene_closed(self) -> None:
         self._observeSelectionNode()
         if self.parent.isEntered:
             self.initializeParameterNode()
@@ -362,11 +371,20 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
             self._parameterNode and self._parameterNode.preference == "number"
         )
 
-    def show_outside_change(self, change: str) -> None:
-        self.ui.statusLabel.text = _(
+    @staticmethod
+    def outsideChangeText() -> str:
+        return _(
             "The 3D view shows another transfer function than this design (changed in the Volume Rendering "
-            "module). Editing a class shows the design again, after asking."
+            "module). Editing a class or choosing a look shows the design again, after asking."
         )
+
+    def show_outside_change(self, change: Optional[str]) -> None:
+        """The status follows the 3D view: said when it shows another transfer function, gone when it no longer
+        does."""
+        if change is not None:
+            self.ui.statusLabel.text = self.outsideChangeText()
+        elif self.ui.statusLabel.text == self.outsideChangeText():
+            self.ui.statusLabel.text = ""
 
     # Active volume ---------------------------------------------------------------------------------------------------
     def _observeSelectionNode(self) -> None:
@@ -380,122 +398,118 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
     # Apply. A design expected to take less than about a second runs here, on the main thread, repainting and
     # checking Cancel at each progress report (between affinity propagation's iterations too); a longer one runs in a
     # child process, polled by a timer, so Slicer stays responsive and Cancel is at once (the process costs a few
-    # tenths of a second to start: see IsoSimilarityTFLib.session).
+    # tenths of a second to start: see IsoSimilarityTFLib.session). The panel's state decides; it refuses a second
+    # Apply while one runs (a click queued while Slicer was busy).
     def onApplyButton(self) -> None:
-        if self._running or not self._parameterNode or not self._parameterNode.inputVolume:
-            return
-        volume = self._parameterNode.inputVolume
-        options = None
-        with slicer.util.tryWithErrorDisplay(_("Failed to compute the transfer function.")):
-            options = self.logic.designOptions(self._parameterNode)
-        if options is None:
-            return
-        from IsoSimilarityTFLib.session import fit_levels
-
-        dimensions = volume.GetImageData().GetDimensions() if volume.GetImageData() else (0, 0, 0)
-        available = fit_levels(tuple(reversed(dimensions)), options)[1]
-        if available is not None:
-            logging.info(f"IsoSimilarityTF: {volume.GetName()} has {available} octree levels; using all of them")
-        self.addLog(_("Designing a transfer function for {name}...").format(name=volume.GetName()))
-        if self.logic.runs_in_process(volume, options):
-            self._runInProcess(volume, options)
-            return
-        # The progress bar shows while the volume is written for the design process (a large one takes a while).
-        self._setRunning(True)
-        slicer.app.processEvents()
+        outcome = None
         try:
             with slicer.util.tryWithErrorDisplay(_("Failed to compute the transfer function."), waitCursor=True):
-                self.panel.start_job(volume, options)
+                outcome = self.panel.apply(self._showProgress)
+        finally:
+            if self.panel.apply_state == RUNNING_CHILD:
                 self._pollTimer.start()
-        finally:
-            if self.panel.job is None:  # it failed (and said so)
-                self._setRunning(False)
-
-    def _runInProcess(self, volume, options: dict) -> None:
-        self._setRunning(True)
-
-        def progress(stage: str, fraction: float, message: str) -> None:
-            self._showProgress(stage, fraction, message)
-            slicer.app.processEvents()  # repaint, and let Cancel be pressed
-
-        try:
-            with slicer.util.tryWithErrorDisplay(_("Failed to compute the transfer function."), waitCursor=True):
-                design = self.panel.run_here(volume, options, progress)
-                if design is None:
-                    self.addLog(_("Cancelled."))
-                else:
-                    self._logResult(volume, design)
-        finally:
-            self._setRunning(False)
+        if outcome == DONE:
+            self._logResult(self.logic.design)
+        elif outcome == CANCELLED:
+            self.addLog(_("Cancelled."))
+        elif outcome == VOLUME_REMOVED:
+            self.addLog(_("The input volume was removed from the scene."))
 
     def _showProgress(self, stage: str, fraction: float, message: str) -> None:
         low, high = STAGE_PROGRESS.get(stage, (0, 100))
         self.ui.progressBar.value = round(low + (high - low) * min(max(fraction, 0.0), 1.0))
         self.ui.progressBar.setFormat(f"{message} (%p%)")
+        slicer.app.processEvents()  # repaint, and let Cancel be pressed
 
-    def _logResult(self, volume, design) -> None:
+    def _logResult(self, design) -> None:
         summary = self.logic.summaryText(design)
         if self.logic.range_warning:
             summary += " " + _("Note: {warning}.").format(warning=self.logic.range_warning)
         self.addLog(summary)
-        logging.info(f"IsoSimilarityTF timings for {volume.GetName()}: {self.logic.timingsText(design)}")
+        name = self.logic.volume_node.GetName() if self.logic.volume_node is not None else ""
+        logging.info(f"IsoSimilarityTF timings for {name}: {self.logic.timingsText(design)}")
 
     def _pollJob(self) -> None:
-        if self.panel.job is None:
-            self._pollTimer.stop()
-            return
-        volume = self.panel.job_volume
+        outcome = RUNNING
         try:
             with slicer.util.tryWithErrorDisplay(_("Failed to compute the transfer function."), waitCursor=True):
-                reports, state = self.panel.poll_job()
+                reports, outcome = self.panel.poll_job()
                 for report in reports:
                     self._showProgress(*report)
-                if state == JOB_VOLUME_REMOVED:
+                if outcome == VOLUME_REMOVED:
                     raise RuntimeError(_("The input volume was removed from the scene."))
-                if state == JOB_DONE:
-                    self._logResult(volume, self.logic.design)
+                if outcome == DONE:
+                    self._logResult(self.logic.design)
         finally:
-            if self.panel.job is None:  # done, failed or removed
+            if self.panel.apply_state != RUNNING_CHILD:  # done, failed, removed or cancelled
                 self._pollTimer.stop()
-                self._setRunning(False)
 
     def onCancelButton(self) -> None:
-        if self.panel.in_process:  # the design stops at its next progress report, which then says so
-            self.panel.cancel()
-            self.ui.cancelButton.enabled = False
-            return
-        self._stopJob()
-        self._setRunning(False)
-        self.addLog(_("Cancelled."))
-
-    def _stopJob(self) -> None:
-        """End the design process, if any (at once, at any stage); a design in this process stops at its next
-        progress report."""
-        if self._pollTimer is not None:
+        """A child process ends at once; a design here stops at its next progress report, which then says so."""
+        child = self.panel.apply_state == RUNNING_CHILD
+        self.panel.cancel()
+        if child:
             self._pollTimer.stop()
-        if self.panel is not None:
-            self.panel.cancel()
+            self.addLog(_("Cancelled."))
 
-    def _setRunning(self, running: bool) -> None:
+    def show_apply_state(self, state: str, volume) -> None:
+        running = state != IDLE
         self.ui.progressBar.value = 0
         self.ui.progressBar.setFormat("%p%")
         self.ui.progressBar.visible = running
         self.ui.cancelButton.visible = running
-        self.ui.cancelButton.enabled = running
+        self.ui.cancelButton.enabled = state in (RUNNING_HERE, RUNNING_CHILD)
         for widget in (
             self.ui.applyButton,
             self.ui.inputSelector,
             self.ui.advancedCollapsibleButton,
+            self.ui.looksCollapsibleButton,
             self.ui.tissuesCollapsibleButton,
         ):
             widget.enabled = not running
-        if not running:
-            self.panel.refresh()
+        if state in (RUNNING_HERE, RUNNING_CHILD):
+            # The progress bar shows before the volume is written for the design process (a large one takes a
+            # while); the panel's state is set already, so a click handled here cannot start a second Apply.
+            self.addLog(_("Designing a transfer function for {name}...").format(name=volume.GetName()))
 
     def addLog(self, text: str) -> None:
         """Show a message under the Apply button."""
         self.ui.statusLabel.text = text
         slicer.app.processEvents()
+
+    # Looks -----------------------------------------------------------------------------------------------------------
+    def _showLooks(self, design) -> None:
+        """One button per look of the design's gallery (made per grouping), with its thumbnail and promise."""
+        layout = self.ui.looksButtonsWidget.layout()
+        for button in self._lookButtons.values():
+            layout.removeWidget(button)
+            button.deleteLater()
+        self._lookButtons = {}
+        if design is None:
+            self.ui.looksLabel.text = _("Press Apply to see the looks the data support.")
+            return
+        looks = design.looks
+        self.ui.looksLabel.text = _("{count} looks made from these classes; the first is the first click's.").format(
+            count=len(looks)
+        )
+        for index, look in enumerate(looks):
+            button = qt.QToolButton()
+            button.text = look.title
+            button.checkable = True
+            button.toolButtonStyle = qt.Qt.ToolButtonTextUnderIcon
+            button.toolTip = look.objective
+            button.setIcon(qt.QIcon(self._pixmapFromArray(design.thumbnail(look, size=LOOK_THUMBNAIL_SIZE))))
+            button.setIconSize(qt.QSize(LOOK_THUMBNAIL_SIZE, LOOK_THUMBNAIL_SIZE))
+            button.connect("clicked(bool)", functools.partial(self.onLookClicked, look.name))
+            layout.addWidget(button, index // LOOKS_PER_ROW, index % LOOKS_PER_ROW)
+            self._lookButtons[look.name] = button
+
+    def show_look(self, name: Optional[str]) -> None:
+        for lookName, button in self._lookButtons.items():
+            button.checked = lookName == name
+
+    def onLookClicked(self, name: str, checked: bool = False) -> None:
+        self.panel.use_look(name)
 
     # Tissue tree ---------------------------------------------------------------------------------------------------
     def show_design(self, design) -> None:
@@ -504,6 +518,7 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
         self.show_tree(design)
         self._showSimilarityPicture(design)
         self.ui.timingsLabel.text = self.logic.timingsText(design) if design is not None else ""
+        self.ui.looksCollapsibleButton.enabled = design is not None
         for button in (
             self.ui.resetColorsButton,
             self.ui.showAllButton,
@@ -548,6 +563,7 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
         return _("1 tissue") if count == 1 else _("{count} tissues").format(count=count)
 
     def show_tree(self, design) -> None:
+        self._showLooks(design)
         tree = self.ui.tissuesTreeWidget
         tree.clear()  # deletes the items and their widgets
         self._rowWidgets = {}
@@ -638,8 +654,8 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
         return item
 
     def show_rows(self) -> None:
-        """Set the tree's widgets from the logic's design, without sending edits back."""
-        design = self.logic.design
+        """Set the tree's widgets from the shown design, without sending edits back."""
+        design = self.panel.detail_design()
         if design is None:
             return
         soloMode = design.solo_class is not None or design.solo_tissue_id is not None
@@ -701,7 +717,7 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
 
     def onRowColorChanged(self, level: str, itemId: int, color) -> None:
         self._edit(lambda: self.logic.edit(level, itemId, color=(color.redF(), color.greenF(), color.blueF())))
-        self._showSimilarityPicture(self.logic.design)
+        self._showSimilarityPicture(self.panel.detail_design())
 
     def onRowOpacityChanged(self, level: str, itemId: int, value: int) -> None:
         self._edit(lambda: self.logic.edit(level, itemId, opacity=value / 100.0))
@@ -715,15 +731,16 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
 
     def onResetColorsButton(self) -> None:
         self._edit(self.logic.reset_colors)
-        self._showSimilarityPicture(self.logic.design)
+        self._showSimilarityPicture(self.panel.detail_design())
 
     def onShowAllButton(self) -> None:
         self._edit(self.logic.show_all_classes)
 
     # Handing the design over -----------------------------------------------------------------------------------------
     def onExportButton(self) -> None:
-        if self.logic.design is None:
-            return
+        self.panel.hand_over(self._exportTransferFunction)
+
+    def _exportTransferFunction(self) -> None:
         volume = self.logic.volume_node
         extension = self.logic.defaultExportExtension()
         fileName = (volume.GetName() if volume else "TransferFunction") + extension
@@ -743,8 +760,9 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
             self.addLog(_("Transfer function written to {path}").format(path=written))
 
     def onExportSegmentationButton(self) -> None:
-        if self.logic.design is None:
-            return
+        self.panel.hand_over(self._exportSegmentation)
+
+    def _exportSegmentation(self) -> None:
         with slicer.util.tryWithErrorDisplay(_("Failed to export the classes to a segmentation."), waitCursor=True):
             segmentationNode = self.logic.export_segmentation()
             count = segmentationNode.GetSegmentation().GetNumberOfSegments()
@@ -755,8 +773,9 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
             )
 
     def onSavePresetButton(self) -> None:
-        if self.logic.design is None:
-            return
+        self.panel.hand_over(self._savePreset)
+
+    def _savePreset(self) -> None:
         volume = self.logic.volume_node
         name = qt.QInputDialog.getText(
             self.parent,
@@ -1056,6 +1075,24 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
         self.assertAlmostEqual(
             widget.logic.property_node.GetVolumeProperty().GetScalarOpacity().GetValue(560.0), 0.40, places=6
         )
+        # A preset copied in is said at once. "Show this module's design again" is answered here: under ctest
+        # Slicer's confirmYesNoDisplay answers No (PythonQt enums are ints; audit G6), in Reload and Test it asks.
+        widget.confirm_overwrite = lambda change: True
+        preset = slicer.modules.volumerendering.logic().GetPresetByName("MR-Default")
+        widget.logic.property_node.CopyContent(preset)
+        self.assertEqual(widget.ui.statusLabel.text, widget.outsideChangeText())
+        widget._rowWidgets[(TISSUE, top.id)]["opacity"].value = 50
+        self.assertEqual(widget.ui.statusLabel.text, "")
+        self.assertFalse(mrml.modified_outside(volumeNode))
+        del widget.confirm_overwrite
+        # The looks: one button each, the chosen one checked; a click shows that look.
+        looks = [look.name for look in widget.logic.design.looks]
+        self.assertEqual(sorted(widget._lookButtons), sorted(looks))
+        self.assertTrue(widget._lookButtons[widget.logic.design.chosen_look].checked)
+        widget._lookButtons[looks[-1]].click()
+        self.assertEqual(widget.logic.design.look_name, looks[-1])
+        self.assertTrue(widget._lookButtons[looks[-1]].checked)
+        self.assertEqual(mrml.design_of_volume(volumeNode).look_name, looks[-1])
         widget._rowWidgets[(TISSUE, top.id)]["solo"].checked = True
         self.assertEqual(widget.logic.design.solo_tissue_id, top.id)
         self.assertFalse(widget._rowWidgets[(TISSUE, 0)]["visible"].enabled)

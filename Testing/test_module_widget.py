@@ -161,14 +161,18 @@ def test_no_design_leaves_the_saved_detail_alone(panel, slicer_app):
     assert widget.ui.detailSlider.enabled is False
 
 
+def _apply_parameters(widget, module, volume, **values):
+    widget._parameterNode = _defaults(module, inputVolume=volume, **values)
+    widget.panel.set_parameters(widget._parameterNode, node=__import__("vtk").vtkObject())
+    widget._pollTimer = mock.MagicMock(name="timer")
+
+
 def test_apply_in_process_shows_the_design_and_cancel_changes_nothing(panel, slicer_app, module):
     widget, volume = panel
-    widget.panel.refresh()
-    options = {"n_bins": 32, "tissues": 1}
-    assert widget.logic.runs_in_process(volume, options)
-    widget._runInProcess(volume, options)
+    _apply_parameters(widget, module, volume, bins=32, tissues=1)
+    widget.onApplyButton()
     assert widget.logic.design.n_bins == 32 and widget.logic.design.n_tissues == 1
-    assert widget._parameterNode.tissues == 1 and not widget._running
+    assert widget._parameterNode.tissues == 1 and not widget.panel.running
     stored = mrml.design_of_volume(volume).to_dict()
 
     import slicer
@@ -176,14 +180,56 @@ def test_apply_in_process_shows_the_design_and_cancel_changes_nothing(panel, sli
     pressed = []
 
     def press_cancel():  # the user presses Cancel once, while the design runs
-        if widget.panel.in_process and not pressed:
+        if widget.panel.running and not pressed:
             pressed.append(True)
             widget.onCancelButton()
 
     slicer.app.processEvents.side_effect = press_cancel
-    widget._runInProcess(volume, {"n_bins": 64})
+    widget._parameterNode.bins = 64
+    widget.onApplyButton()
     assert mrml.design_of_volume(volume).to_dict() == stored
-    assert pressed and widget.ui.statusLabel.text == "Cancelled." and not widget._running
+    assert pressed and widget.ui.statusLabel.text == "Cancelled." and not widget.panel.running
+    assert widget.ui.applyButton.enabled is True
+
+
+def test_g2_a_second_apply_queued_while_slicer_is_busy_is_refused(panel, slicer_app, module, tmp_path, monkeypatch):
+    """The job path: Apply's own processEvents (the status line, the progress bar) handles a queued second click."""
+    import slicer
+
+    widget, volume = panel
+    _apply_parameters(widget, module, volume, bins=32)
+    monkeypatch.setattr(widget.logic, "runs_in_process", lambda *args: False)
+    monkeypatch.setattr(widget.logic, "python_executable", lambda: sys.executable)
+    slicer.app.temporaryPath = str(tmp_path)
+    clicks = []
+
+    def second_click():
+        if not clicks:
+            clicks.append(True)
+            widget.onApplyButton()
+
+    slicer.app.processEvents.side_effect = second_click
+    widget.onApplyButton()
+    assert clicks and len(list(tmp_path.glob("IsoSimilarityTF-*"))) == 1
+    widget._pollTimer.start.assert_called()
+    widget.onCancelButton()
+    assert list(tmp_path.glob("IsoSimilarityTF-*")) == [] and not widget.panel.running
+    widget._pollTimer.stop.assert_called()
+
+
+def test_g4_the_hand_overs_act_on_the_shown_volumes_design(panel, slicer_app, module):
+    widget, volume = panel
+    widget.panel.refresh()
+    other = slicer_app.add_volume(nested_volume(), spacing=SPACING, name="Other")
+    widget.logic.apply(other, hand_made_design())  # a script, with the widget's own logic
+    before = mrml.design_of_volume(other).to_dict()
+    widget.onRowOpacityChanged(TISSUE, 2, 30)
+    assert mrml.design_of_volume(volume).tissues[2].opacity == pytest.approx(0.3)
+    widget.logic.apply(other, hand_made_design())
+    widget.onExportSegmentationButton()
+    names = [n.GetName() for n in _nodes(volume.GetScene(), "vtkMRMLSegmentationNode")]
+    assert len(names) == 1 and names[0].startswith("Nested")
+    assert mrml.design_of_volume(other).to_dict() == before
 
 
 def test_f4_a_design_applied_behind_the_panel_is_not_regrouped(module, slicer_app):
@@ -342,6 +388,22 @@ def test_f2_on_slicer_5_8_closing_the_scene_five_times_changes_no_choice(module,
     assert {name: values[name] for name in choices} == {name: before[name] for name in choices}
 
 
+def test_g5_cleanup_leaves_no_gui_bound_to_the_parameter_node(module, slicer_app):
+    import vtk
+
+    widget = module.IsoSimilarityTFWidget()
+    widget.ui = mock.MagicMock(name="ui")
+    widget.logic = module.IsoSimilarityTFLogic()
+    widget.panel = module.PanelModel(widget.logic, widget)
+    values = {name: getattr(module.IsoSimilarityTFParameterNode, name, None) for name in ("preference", "tissues")}
+    wrapper = _Wrapper58(vtk.vtkObject(), {**values, "inputVolume": None}, {}, lambda ui, name: None)
+    widget.setParameterNode(wrapper)
+    assert wrapper._parameterGUIs and wrapper.parameterNode.HasObserver("ModifiedEvent")
+    widget.cleanup()  # Reload, or Slicer closing
+    assert wrapper._parameterGUIs == {} and widget._parameterNode is None
+    assert not wrapper.parameterNode.HasObserver("ModifiedEvent") and widget.panel.parameters is None
+
+
 def test_f2_every_choice_parameter_defaults_to_its_first_choice(module):
     """A rebuilt combo box selects item 0 (Qt); a choice defaulting to another word was overwritten on Slicer 5.8."""
     import typing
@@ -451,5 +513,5 @@ def test_apply_designs_with_the_panels_options(panel, module):
     widget.onApplyButton()
     design = widget.logic.design
     assert (design.n_bins, design.options["levels"], design.options["modality"]) == (32, 2, "mr")
-    assert design.options["tissues"] == "auto" and widget.panel.shown_volume is volume and not widget._running
+    assert design.options["tissues"] == "auto" and widget.panel.shown_volume is volume and not widget.panel.running
     assert mrml.design_of_volume(volume).to_dict() == design.to_dict()

@@ -303,6 +303,11 @@ class TransferFunctionDesign:
             self._gallery = gallery(self.look_context())
         return self._gallery
 
+    @property
+    def chosen_look(self) -> str:
+        """The look shown: :attr:`look_name`, or the first click's (:func:`.gallery.first_look_name`)."""
+        return self.look_name or first_look_name(self.look_context())
+
     def use_look(self, name: str) -> None:
         """Show the look ``name`` of :attr:`looks` (its colours, opacities and visibility replace the current
         ones, edits included); a regrouping keeps it. Leaves solo mode."""

@@ -155,8 +155,10 @@ def shows_design(property_node, design: TransferFunctionDesign, tolerance: float
     return True
 
 
-def outside_change(volume_node) -> Optional[str]:
+def outside_change(volume_node, design: Optional[TransferFunctionDesign] = None) -> Optional[str]:
     """How the transfer function shown for the volume differs from its design, or None if it does not.
+
+    ``design``: the volume's design when the caller holds it (else it is read from the scene).
 
     Returns:
         None when the volume has no design, when its design's transfer function is shown, or when no transfer
@@ -164,7 +166,8 @@ def outside_change(volume_node) -> Optional[str]:
         rendering shows another property node; :data:`CHANGE_EDITED` when the design's property node holds another
         transfer function (a preset was copied into it, Shift or Synchronize with Volumes was used, or it was edited).
     """
-    design = design_of_volume(volume_node)
+    if design is None:
+        design = design_of_volume(volume_node)
     if design is None:
         return None
     ours, shown = design_node_of(volume_node), displayed_property_node(volume_node)
@@ -211,6 +214,9 @@ def _design_nodes(volume_node, create: bool):
         name = scene.GenerateUniqueName(f"{volume_node.GetName()} {NODE_NAME_SUFFIX} design")
         text_node = scene.AddNewNodeByClass("vtkMRMLTextNode", name)
         volume_node.SetNodeReferenceID(DESIGN_ROLE, text_node.GetID())
+    # Internal, as Slicer's own: not listed in the Data module, where deleting it would lose the design (still saved).
+    if not text_node.GetHideFromEditors():
+        text_node.SetHideFromEditors(True)
     text_node.SetNodeReferenceID(PROPERTY_ROLE, property_node.GetID())
     if property_node.GetAttribute(LEGACY_DESIGN_ATTRIBUTE) is not None:  # moved to the text node
         property_node.RemoveAttribute(LEGACY_DESIGN_ATTRIBUTE)

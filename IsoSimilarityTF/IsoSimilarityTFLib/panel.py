@@ -1,11 +1,16 @@
-"""The module panel's state without Qt: the volume it shows, that volume's design, the Detail shown, whether the 3D
-view was changed outside the module, and how these follow the scene (imports, closes) and the user (Apply, edits).
+"""The module panel's state without Qt, with one owner: :class:`PanelModel`.
 
-The widget (``IsoSimilarityTF.py``) gives a :class:`PanelView` that draws with Qt and its parameter node wrapper; the
-model observes the scene and the parameter node itself with plain VTK observers, so the tests drive it on a real
-``slicer-core`` scene with the events in Slicer's own order (``Testing/test_panel.py``).
+The model holds each piece of the panel's state: the volume it shows (and so that volume's design), the Detail the
+shown design is grouped with, the chosen look, the Apply state (idle, running here, running in a child process,
+cancelling) and whether the 3D view shows another transfer function than the design. It changes each in one place and
+tells its view once per change (a ``show_*`` method of :class:`PanelView`). It alone observes the scene, the
+parameter node, the active volume and the shown volume's rendering, with plain VTK observers at explicit priorities
+(Slicer's node selector and the parameter node wrapper observe the same objects). The widget
+(``IsoSimilarityTF.py``) draws with Qt and forwards clicks; the tests drive the model on a real ``slicer-core`` scene
+with the events in Slicer's own order (``Testing/test_panel.py``).
 """
 
+from contextlib import contextmanager
 from typing import Callable, Optional
 
 from . import mrml
@@ -13,9 +18,21 @@ from .errors import OptionError
 from .options import check_options
 from .session import AUTO_DETAIL, Cancelled, DesignSession
 
-#: What :meth:`PanelModel.poll_job` says of the job: still running, done (its design shown), or its volume was
-#: removed from the scene meanwhile (nothing shown).
-JOB_RUNNING, JOB_DONE, JOB_VOLUME_REMOVED = "running", "done", "volume-removed"
+#: The Apply states: nothing runs; a design runs in this process; in a child process; Cancel was pressed and the
+#: design in this process stops at its next progress report.
+IDLE, RUNNING_HERE, RUNNING_CHILD, CANCELLING = "idle", "running-here", "running-child", "cancelling"
+
+#: What :meth:`PanelModel.apply` and :meth:`PanelModel.poll_job` say of an Apply: still running (in a child
+#: process), done (its design shown; a child's error is raised), cancelled, refused (one already runs, or no volume is
+#: selected: nothing started), or its volume was removed from the scene meanwhile (nothing shown).
+RUNNING, DONE, CANCELLED, REFUSED, VOLUME_REMOVED = "running", "done", "cancelled", "refused", "volume-removed"
+
+#: Observer priorities (VTK calls higher priorities first). The parameter node's ModifiedEvent is observed after the
+#: wrapper's cache observers (priority 0; VTK calls the first one added last, so an equal priority would read the
+#: previous value: audit G3). A scene's EndImport is observed twice: first, to note the imported input volume before
+#: the node selector rebuilds and writes the scene's first volume into the parameter node (Slicer#7492, audit G1);
+#: last, to select that volume again and show its design.
+AFTER_CACHES, BEFORE_SELECTOR, AFTER_SELECTOR = -1.0, 100.0, -100.0
 
 #: The panel's parameters (the module's parameter node) and the engine options they set
 #: (``design_transfer_function`` keywords); the parameter node takes each one's range, words and default from the
@@ -81,16 +98,18 @@ def gui_tag(wrapper, tag):
 
 
 class PanelView:
-    """What the model asks the panel to draw or ask; the widget overrides these with Qt (here they do nothing)."""
+    """What the model tells its view, one method per piece of state (the widget draws with Qt; here they do nothing),
+    and the two questions it asks."""
 
     def show_parameters(self) -> None:
         """The parameter node changed: enable what depends on it (Apply needs a volume, ...)."""
 
     def show_design(self, design) -> None:
-        """Show a design, or none: the tree, the Detail slider's range, the similarity picture, the buttons."""
+        """The shown volume changed, or its design: the tree, the Detail slider's range, the looks, the similarity
+        picture, the hand-over buttons (``design`` None: the panel shows none)."""
 
     def show_tree(self, design) -> None:
-        """Rebuild the tree only (the grouping changed)."""
+        """The grouping changed: rebuild the tree and the looks (the looks are made per grouping)."""
 
     def show_rows(self) -> None:
         """Set the tree's editors from the design (an edit was made or refused)."""
@@ -98,8 +117,21 @@ class PanelView:
     def show_detail_label(self) -> None:
         """The text beside the Detail slider."""
 
-    def show_outside_change(self, change: str) -> None:
-        """Say that the 3D view shows another transfer function than the design (see :func:`.mrml.outside_change`)."""
+    def show_look(self, name: Optional[str]) -> None:
+        """The chosen look (None: no design shown)."""
+
+    def show_apply_state(self, state: str, volume) -> None:
+        """The Apply state changed (:data:`IDLE`, :data:`RUNNING_HERE`, ...); ``volume``: the one being designed."""
+
+    def show_outside_change(self, change: Optional[str]) -> None:
+        """Whether the 3D view shows another transfer function than the design (see :func:`.mrml.outside_change`;
+        None: it shows the design)."""
+
+    def scene_closing(self) -> None:
+        """The scene is being closed (the panel shows nothing): let go of the parameter node's GUI."""
+
+    def scene_closed(self) -> None:
+        """The scene was closed: follow its new selection node and parameter node."""
 
     def confirm_overwrite(self, change: str) -> bool:
         """Ask before an edit replaces a transfer function changed outside the module."""
@@ -127,12 +159,14 @@ class PanelModel:
         self.shown_volume = None
         #: The Detail the shown design is grouped with (None: no design shown; the Detail is then left alone).
         self.detail_shown: Optional[int] = None
-        #: The design being computed in a child process (:class:`~.worker.DesignProcess`) and its volume.
+        #: The Apply state (:data:`IDLE`, :data:`RUNNING_HERE`, :data:`RUNNING_CHILD`, :data:`CANCELLING`).
+        self.apply_state = IDLE
+        #: The volume being designed (None when idle).
+        self.apply_volume = None
+        #: The design being computed in a child process (:class:`~.worker.DesignProcess`).
         self.job = None
-        self.job_volume = None
-        #: A design is being computed in this process; Cancel was pressed meanwhile.
-        self.in_process = False
-        self.cancel_requested = False
+        #: How the 3D view differs from the shown design (:func:`.mrml.outside_change`), as last told to the view.
+        self.outside_change: Optional[str] = None
         #: The input follows the scene's active volume (the selection node's) until the user picks another volume.
         self.follow_active_volume = True
         self._scene = None
@@ -140,11 +174,14 @@ class PanelModel:
         self._parameter_observation = None
         self._selection_node = None
         self._selection_observation = None
+        self._rendering_observation = None
+        self._imported_input_id = None
+        self._writing = 0
 
     @property
     def running(self) -> bool:
         """An Apply is under way: the panel then ignores the parameter node and the active volume until it ends."""
-        return self.job is not None or self.in_process
+        return self.apply_state != IDLE
 
     # Connections ---------------------------------------------------------------------------------------------------
     def observe_scene(self, scene) -> None:
@@ -152,7 +189,8 @@ class PanelModel:
         self._scene = scene
         self._observe(scene, scene.StartCloseEvent, self.on_scene_start_close)
         self._observe(scene, scene.EndCloseEvent, self.on_scene_end_close)
-        self._observe(scene, scene.EndImportEvent, self.on_scene_end_import)
+        self._observe(scene, scene.EndImportEvent, self._note_imported_input, BEFORE_SELECTOR)
+        self._observe(scene, scene.EndImportEvent, self.on_scene_end_import, AFTER_SELECTOR)
 
     def observe_selection(self, selection_node) -> None:
         """Follow the active volume of this selection node (the application logic's; again after a scene close, in
@@ -175,12 +213,15 @@ class PanelModel:
         self.parameters = parameters
         if parameters is not None:
             observed = parameters.parameterNode if node is None else node
-            self._parameter_observation = (observed, observed.AddObserver(_MODIFIED_EVENT, self._on_modified))
+            tag = observed.AddObserver(_MODIFIED_EVENT, self._on_modified, AFTER_CACHES)
+            self._parameter_observation = (observed, tag)
 
     def stop(self) -> None:
-        """Remove every observer (the widget is cleaned up)."""
+        """Cancel an Apply and remove every observer (the widget is cleaned up)."""
+        self.cancel()
         self.set_parameters(None)
         self.observe_selection(None)
+        self._observe_rendering(None)
         for observed, tag in self._observations:
             observed.RemoveObserver(tag)
         self._observations = []
@@ -188,8 +229,45 @@ class PanelModel:
     def _on_modified(self, caller, event) -> None:
         self.refresh()
 
-    def _observe(self, observed, event, method) -> None:
-        self._observations.append((observed, observed.AddObserver(event, lambda caller, event: method())))
+    def _observe(self, observed, event, method, priority: float = 0.0) -> None:
+        tag = observed.AddObserver(event, lambda caller, event: method(), priority)
+        self._observations.append((observed, tag))
+
+    def _observe_rendering(self, volume) -> None:
+        """Follow the rendering of the shown volume: its display nodes, their property nodes and those nodes'
+        transfer functions (the volume sends DisplayModifiedEvent for each), to say at once when the 3D view shows
+        another transfer function than the design (a preset, Shift, Synchronize, another property node)."""
+        if self._rendering_observation is not None:
+            self._rendering_observation[0].RemoveObserver(self._rendering_observation[1])
+            self._rendering_observation = None
+        if volume is not None:
+            tag = volume.AddObserver(volume.DisplayModifiedEvent, self._on_rendering_modified)
+            self._rendering_observation = (volume, tag)
+
+    def _on_rendering_modified(self, caller, event) -> None:
+        if not self._writing:
+            self._check_outside_change()
+
+    @contextmanager
+    def _writes(self):
+        """The panel writes the shown design into the scene: the rendering's events are not checked one by one
+        (an edit sends dozens); the outside change is checked once at the end."""
+        self._writing += 1
+        try:
+            yield
+        finally:
+            self._writing -= 1
+            if not self._writing:
+                self._check_outside_change()
+
+    def _check_outside_change(self) -> None:
+        change = None
+        if self.shown_volume is not None and self.detail_shown is not None:
+            current = self.session.volume_node is self.shown_volume
+            change = mrml.outside_change(self.shown_volume, self.session.design if current else None)
+        if change != self.outside_change:
+            self.outside_change = change
+            self.view.show_outside_change(change)
 
     # The active volume -------------------------------------------------------------------------------------------
     def active_volume(self):
@@ -236,121 +314,183 @@ class PanelModel:
 
     def show_volume(self, volume) -> None:
         """Show the design stored for the volume (an earlier run, a saved scene), or none."""
-        self.show_result(volume, self.session.restore(volume))
-        change = self.session.outside_change()
-        if change is not None:
-            self.view.show_outside_change(change)
+        with self._writes():  # a restore sets the unit distance again
+            design = self.session.restore(volume)
+        self.show_result(volume, design)
+
+    def _note_imported_input(self) -> None:
+        """EndImport, before the node selector: the input volume the imported parameter node selects."""
+        node = self.parameters.parameterNode if self.parameters is not None else None
+        self._imported_input_id = node.GetNodeReferenceID("inputVolume") if node is not None else None
 
     def on_scene_end_import(self) -> None:
-        """A scene was added or loaded: its nodes and files are all read now, so look at the volume again."""
-        if self.parameters is not None and not self.running:
-            self.show_volume(self.parameters.inputVolume)  # its show_result draws the Detail label
+        """EndImport, after the node selector: the scene's nodes and files are all read now. Select the volume the
+        imported parameter node selected (the selector wrote the scene's first volume meanwhile), and show it."""
+        imported, self._imported_input_id = self._imported_input_id, None
+        if self.parameters is None or self.running:
+            return
+        node = self._scene.GetNodeByID(imported) if imported and self._scene is not None else None
+        if node is not None and node is not self.parameters.inputVolume:
+            self.parameters.inputVolume = node
+        self.show_volume(self.parameters.inputVolume)
 
     def on_scene_start_close(self) -> None:
+        """A design under way would be written into the closing scene: it is stopped; the panel shows nothing."""
+        self.cancel()
         self.session.forget()
-        self.shown_volume = None
-        self.detail_shown = None
-        self.view.show_design(None)
+        self.show_result(None, None)
+        self.view.scene_closing()
 
     def on_scene_end_close(self) -> None:
         self.follow_active_volume = True
+        self.view.scene_closed()
+
+    # The shown design --------------------------------------------------------------------------------------------
+    def show_result(self, volume, design) -> None:
+        """A design (or none) is the volume's: show it in the panel (after an Apply, or a restore)."""
+        if volume is not self.shown_volume:
+            self._observe_rendering(volume)
+        self.shown_volume = volume
+        self.detail_shown = self.session.detail() if design is not None else None
+        # The slider's range first: it must not clamp the grouping written next.
+        self.view.show_design(design)
+        if design is not None and self.parameters is not None:
+            self.parameters.tissues = self.detail_shown
+        self.view.show_detail_label()
+        self.view.show_look(self.look())
+        self._check_outside_change()
+
+    def shown_design(self):
+        """The shown volume's design, made the session's current one again if a script made another volume's
+        current behind the panel; None when the panel shows no design (then nothing acts on one)."""
+        if self.shown_volume is None or self.detail_shown is None:
+            return None
+        if self.session.volume_node is not self.shown_volume:
+            with self._writes():
+                design = self.session.restore(self.shown_volume)
+            if design is None:  # its design node was deleted meanwhile
+                self.show_result(self.shown_volume, None)
+            return design
+        return self.session.design
+
+    def detail_design(self):
+        """The design the Detail label describes (None when the panel shows none)."""
+        return (
+            self.session.design
+            if self.detail_shown is not None and self.session.volume_node is self.shown_volume
+            else None
+        )
+
+    def detail(self) -> int:
+        return self.parameters.tissues if self.parameters is not None else AUTO_DETAIL
+
+    def look(self) -> Optional[str]:
+        """The shown design's chosen look (None: no design shown)."""
+        design = self.detail_design()
+        return design.chosen_look if design is not None else None
 
     # The Detail --------------------------------------------------------------------------------------------------
     def detail_changed(self) -> None:
         """Regroup the shown design when the parameter node's Detail is not the one it is grouped with."""
         detail = self.parameters.tissues
-        if not self.shows_session_design() or detail == self.detail_shown:
+        if detail == self.detail_shown or self.shown_design() is None:
             self.view.show_detail_label()
             return
         self.detail_shown = detail
         if self._confirm():
-            self.view.attempt("regroup", lambda: self.session.regroup(detail))
+            with self._writes():
+                self.view.attempt("regroup", lambda: self.session.regroup(detail))
         # The design's own setting: a count past its classes becomes its class count; if the user kept the other
         # transfer function, the Detail goes back to the design's grouping.
         self.detail_shown = self.session.detail()
         self.parameters.tissues = self.detail_shown
         self.view.show_tree(self.session.design)
         self.view.show_detail_label()
-
-    def shows_session_design(self) -> bool:
-        """Whether the panel shows the session's current design: the Detail and the edits act on it only (a script
-        may have applied a design to another volume behind the panel)."""
-        return (
-            self.session.design is not None
-            and self.detail_shown is not None
-            and self.session.volume_node is self.shown_volume
-        )
-
-    def detail_design(self):
-        """The design the Detail label describes (None when the panel shows none)."""
-        return self.session.design if self.shows_session_design() else None
-
-    def detail(self) -> int:
-        return self.parameters.tissues if self.parameters is not None else AUTO_DETAIL
+        self.view.show_look(self.look())
 
     # Apply -------------------------------------------------------------------------------------------------------
-    def show_result(self, volume, design) -> None:
-        """A design (or none) is the volume's: show it in the panel (after an Apply, or a restore)."""
-        self.shown_volume = volume
-        self.detail_shown = self.session.detail()
-        # The slider's range first: it must not clamp the grouping written next.
-        self.view.show_design(design)
-        if design is not None and self.parameters is not None:
-            self.parameters.tissues = self.detail_shown
-        self.view.show_detail_label()
+    def _set_apply_state(self, state: str, volume=None) -> None:
+        self.apply_state = state
+        self.apply_volume = volume if state != IDLE else None
+        self.view.show_apply_state(state, volume)
+        if state == IDLE:
+            self.refresh()  # what the parameter node selected meanwhile
 
-    def run_here(self, volume, options: dict, progress: Callable[[str, float, str], None]):
-        """Design in this process and show the design. ``progress(stage, fraction, message)`` draws each report and
-        lets Cancel be pressed (:meth:`cancel`). Returns the design, or None when cancelled or when the volume left
-        the scene meanwhile (nothing changed then)."""
-        self.in_process = True
-        self.cancel_requested = False
+    def apply(self, progress: Callable[[str, float, str], None]) -> str:
+        """Design the selected volume with the panel's options: in this process when it is quick (then
+        ``progress(stage, fraction, message)`` draws each report and may let Cancel be pressed), else in a child
+        process (then :meth:`poll_job`). The Apply state is set before anything can process events, so a second
+        Apply meanwhile is refused.
+
+        Returns :data:`DONE` (the design is shown), :data:`RUNNING` (a child process designs it),
+        :data:`CANCELLED`, :data:`VOLUME_REMOVED` or :data:`REFUSED`. A bad option raises
+        :class:`~.errors.OptionError` before anything starts; the engine's errors are raised (nothing changed).
+        """
+        volume = self.parameters.inputVolume if self.parameters is not None else None
+        if self.running or volume is None:
+            return REFUSED
+        options = engine_options(self.parameters)
+        if not self.session.runs_in_process(volume, options):
+            self._set_apply_state(RUNNING_CHILD, volume)
+            try:
+                self.job = self.session.start(volume, options)
+            except BaseException:
+                self._set_apply_state(IDLE)
+                raise
+            return RUNNING
+        self._set_apply_state(RUNNING_HERE, volume)
 
         def report(stage: str, fraction: float, message: str) -> None:
             progress(stage, fraction, message)
-            if self.cancel_requested or volume.GetScene() is None:
+            if self.apply_state == CANCELLING or volume.GetScene() is None:
                 raise Cancelled()
 
         try:
-            design = self.session.run(volume, options, progress=report)
+            with self._writes():
+                design = self.session.run(volume, options, progress=report)
+            self.show_result(volume, design)
+            return DONE
         except Cancelled:
-            return None
+            return CANCELLED if volume.GetScene() is not None else VOLUME_REMOVED
         finally:
-            self.in_process = False
-        self.show_result(volume, design)
-        return design
-
-    def start_job(self, volume, options: dict) -> None:
-        """Start designing in a child process (the volume is written for it first); then :meth:`poll_job`."""
-        self.cancel_requested = False
-        self.job = self.session.start(volume, options)
-        self.job_volume = volume
+            self._set_apply_state(IDLE)
 
     def poll_job(self) -> tuple:
-        """``(reports, state)``: the job's progress reports since the last call and :data:`JOB_RUNNING`,
-        :data:`JOB_DONE` (its design is shown; the child's error is raised) or :data:`JOB_VOLUME_REMOVED`."""
+        """``(reports, outcome)``: the child's progress reports since the last call and :data:`RUNNING`,
+        :data:`DONE` (its design is shown; the child's error is raised), :data:`VOLUME_REMOVED`, or
+        :data:`CANCELLED` when no job runs."""
         job = self.job
+        if job is None:
+            return [], CANCELLED
         finished = not job.running
         reports = job.poll()
         if not finished:
-            return reports, JOB_RUNNING
-        volume = self.job_volume
-        self.job = self.job_volume = None
-        if volume.GetScene() is None:
-            job.close()
-            return reports, JOB_VOLUME_REMOVED
-        self.show_result(volume, self.session.finish(volume, job))
-        return reports, JOB_DONE
+            return reports, RUNNING
+        volume = self.apply_volume
+        self.job = None
+        try:
+            if volume.GetScene() is None:
+                job.close()
+                return reports, VOLUME_REMOVED
+            with self._writes():
+                design = self.session.finish(volume, job)
+            self.show_result(volume, design)
+            return reports, DONE
+        finally:
+            self._set_apply_state(IDLE)
 
     def cancel(self) -> None:
-        """Cancel the Apply: a job's processes are ended now and its files removed; a design in this process stops
-        at its next progress report."""
-        self.cancel_requested = True
-        if self.job is not None:
-            self.job.close()
-        self.job = self.job_volume = None
+        """Cancel the Apply: a child process is ended now and its files removed; a design in this process stops at
+        its next progress report."""
+        if self.apply_state == RUNNING_HERE:
+            self._set_apply_state(CANCELLING, self.apply_volume)
+        elif self.apply_state == RUNNING_CHILD:
+            job, self.job = self.job, None
+            if job is not None:
+                job.close()
+            self._set_apply_state(IDLE)
 
-    # Edits -------------------------------------------------------------------------------------------------------
+    # Edits, looks and hand-overs ---------------------------------------------------------------------------------
     def _confirm(self) -> bool:
         """Whether an edit may write the design into the 3D view; when the user agrees to replace a transfer function
         changed outside (a preset copied in, Shift, Synchronize), the design's shading and gradient opacity come back
@@ -361,11 +501,24 @@ class PanelModel:
         if not self.view.confirm_overwrite(change):
             return False
         if change == mrml.CHANGE_EDITED:
-            self.session.restyle()
+            with self._writes():
+                self.session.restyle()
         return True
 
     def edit(self, action: Callable[[], None]) -> None:
         """One edit of the shown design (a session method that rewrites the transfer function), after asking."""
-        if self.shows_session_design() and self._confirm():
-            self.view.attempt("edit", action)
+        if self.shown_design() is not None and self._confirm():
+            with self._writes():
+                self.view.attempt("edit", action)
         self.view.show_rows()
+
+    def use_look(self, name: str) -> None:
+        """Show a look of the gallery (an edit: it replaces the colours, opacities and visibility)."""
+        self.edit(lambda: self.session.use_look(name))
+        self.view.show_look(self.look())
+
+    def hand_over(self, action: Callable[[], object]):
+        """Run a hand-over (export, segments, preset) on the shown volume's design; None when none is shown."""
+        if self.shown_design() is None:
+            return None
+        return action()

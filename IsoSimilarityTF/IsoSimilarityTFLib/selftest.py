@@ -17,7 +17,8 @@ import numpy as np
 from . import mrml
 from .classes import build_classes
 from .design import STAGES, TransferFunctionDesign
-from .panel import PanelModel, PanelView
+from .options import OPTIONS
+from .panel import PANEL_NONE, PANEL_OPTIONS, PanelModel, PanelView
 from .session import AUTO_DETAIL, CLASS, TISSUE
 from .tissues import tissue_hierarchy
 from .transfer_function import read_vp, read_vp_json
@@ -384,12 +385,17 @@ def singleton_parameter_node(scene, tag: str):
 
 
 class NodeParameters:
-    """The two parameters the panel's state reads, kept in an MRML node as Slicer's parameter node wrapper keeps them
-    (serializers.py at v5.8.1: a node as a reference named after the parameter, :405-409; an int as its text,
-    :258-261; a missing value read as its default, wrapper.py:43-46), so that writes send the node's ModifiedEvent."""
+    """The two parameters the panel's state follows, kept in an MRML node as Slicer's parameter node wrapper keeps
+    them (serializers.py at v5.8.1: a node as a reference named after the parameter, :405-409; an int as its text,
+    :258-261; a missing value read as its default, wrapper.py:43-46), so that writes send the node's ModifiedEvent.
+    The engine's parameters are plain attributes (``values``), by default the panel's defaults."""
 
-    def __init__(self, node):
+    def __init__(self, node, **values):
         self.parameterNode = node
+        defaults = {parameter: OPTIONS[option].default for parameter, option in PANEL_OPTIONS.items()}
+        self.__dict__.update(defaults, **PANEL_NONE, preferenceValue=-1.0)
+        del self.__dict__["tissues"]
+        self.__dict__.update(values)
 
     @property
     def inputVolume(self):
@@ -415,12 +421,19 @@ class RecordingView(PanelView):
 
     def __init__(self, answer: bool = True) -> None:
         self.designs, self.changes, self.asked, self.answer = [], [], [], answer
+        self.states, self.looks = [], []
 
     def show_design(self, design) -> None:
         self.designs.append(design)
 
-    def show_outside_change(self, change: str) -> None:
+    def show_outside_change(self, change) -> None:
         self.changes.append(change)
+
+    def show_apply_state(self, state: str, volume) -> None:
+        self.states.append(state)
+
+    def show_look(self, name) -> None:
+        self.looks.append(name)
 
     def confirm_overwrite(self, change: str) -> bool:
         self.asked.append(change)

@@ -347,7 +347,7 @@ class DesignSession:
 
         Ask the user before an edit when this is not None: the edit replaces what is shown with the design.
         """
-        return mrml.outside_change(self.volume_node) if self.design is not None else None
+        return mrml.outside_change(self.volume_node, self.design) if self.design is not None else None
 
     def current_design(self) -> TransferFunctionDesign:
         if self.design is None:
@@ -439,6 +439,11 @@ class DesignSession:
         :data:`CLASS` when each tissue is one class (the thesis' classes, named as such)."""
         design = self.current_design()
         return TISSUE if any(len(t.classes) > 1 for t in design.tissues) else CLASS
+
+    def use_look(self, name: str) -> None:
+        """Show the look ``name`` of the current design's gallery (:meth:`.TransferFunctionDesign.use_look`)."""
+        self.current_design().use_look(name)
+        self.update()
 
     def show_all_classes(self) -> None:
         self.current_design().show_all()
