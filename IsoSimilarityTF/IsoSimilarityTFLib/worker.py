@@ -9,27 +9,44 @@ under a second (:func:`.session.runs_in_process`); a longer one runs in a proces
 the application while Slicer stays responsive, and Cancel kills it at once, at any stage. This is how Slicer runs its
 own long computations (command-line modules run as processes and Cancel terminates them).
 
-The parent (:class:`DesignProcess`) writes the voxels (``.npy``), the spacing and the options into a temporary
-folder and starts the child, which imports this library from the parent's folder first; the child (:func:`main`) runs
-:func:`~.design.design_transfer_function`, appends each progress report to ``progress.jsonl`` and writes the design
-(``design.json``) and its similarity matrix (``similarity.npy``), or ``error.json``. Nothing here needs Qt: the Slicer
-module polls :meth:`DesignProcess.poll` from a ``qt.QTimer``; scripts and tests can simply wait.
+The parent (:class:`DesignProcess`) makes a folder ``IsoSimilarityTF-*`` in the temporary folder, writes into it the
+request (spacing, options, and the parent's pid and start time), then the voxels (``.npy``), and starts the child,
+which imports this library from the parent's folder first; the child (:func:`main`) records its own pid and start time
+(``child.json``), runs :func:`~.design.design_transfer_function`, appends each progress report to ``progress.jsonl``
+and writes the design (``design.json``) and its similarity matrix (``similarity.npy``), or ``error.json``. Nothing here
+needs Qt: the Slicer module polls :meth:`DesignProcess.poll` from a ``qt.QTimer``; scripts and tests can simply wait.
 
-Stopping every process of the job. In Slicer the child's executable, ``PythonSlicer``, is CTKAppLauncher: it starts
-``python-real`` as its own child and waits for it, and killing it leaves that child running. So the job runs in its
-own process group (POSIX), which Cancel kills whole (``taskkill /T`` on Windows), and the child also ends itself
-within :data:`WATCH_INTERVAL_S` when the ``cancel`` file appears, its folder is removed or the parent is gone.
+Stopping. In Slicer the child's executable, ``PythonSlicer``, is CTKAppLauncher: it starts ``python-real`` as its own
+child and waits for it, and killing it leaves that child running. So the job stops in three layers, each of which ends
+it alone:
+
+(a) the job runs in a process group of its own (POSIX ``start_new_session``), which :meth:`DesignProcess.cancel` kills
+    whole (``killpg``; ``taskkill /T`` on Windows);
+(b) the child's watchdog thread ends the child within :data:`WATCH_INTERVAL_S` when the ``cancel`` file (written by
+    :meth:`~DesignProcess.cancel` before it kills) appears in its folder or the folder is removed
+    (:meth:`~DesignProcess.close`);
+(c) the same watchdog ends the child when the parent is gone, e.g. Slicer crashed or was killed (:func:`_parent_alive`:
+    ``os.kill(pid, 0)`` and, on Linux, the parent's state and start time in ``/proc``, so a zombie or another process
+    that got the pid does not count; on Windows ``OpenProcess``, ``WaitForSingleObject`` and the creation time from
+    ``GetProcessTimes``, through ctypes).
+
+A parent that is killed cannot remove its job's folder, which may hold a copy of a large volume. So each new
+:class:`DesignProcess` first removes (:func:`remove_stale_folders`) the job folders in its temporary folder whose
+parent is gone and whose child no longer runs; only real directories (never a symbolic link) named
+``IsoSimilarityTF-*`` that hold this module's request file, and on POSIX belong to this user, are touched.
 """
 
 import json
 import os
 import shutil
 import signal
+import stat
 import subprocess
 import sys
 import tempfile
 import threading
 import time
+from functools import cache
 from typing import Optional
 
 import numpy as np
@@ -45,6 +62,12 @@ SIMILARITY_FILE = "similarity.npy"
 ERROR_FILE = "error.json"
 LOG_FILE = "log.txt"
 CANCEL_FILE = "cancel"
+#: The child's pid and start time, written by the child as it starts.
+CHILD_FILE = "child.json"
+#: How a job folder's name starts.
+FOLDER_PREFIX = "IsoSimilarityTF-"
+#: The keys of every request file (how :func:`remove_stale_folders` knows a folder is a job's).
+REQUEST_KEYS = ("spacing", "options", "parent")
 #: How often the child checks whether it should end (seconds).
 WATCH_INTERVAL_S = 0.1
 
@@ -92,21 +115,24 @@ class DesignProcess:
         env: Optional[dict] = None,
         temporary_folder: Optional[str] = None,
     ) -> None:
-        if temporary_folder:
-            os.makedirs(temporary_folder, exist_ok=True)
-        self.folder = tempfile.mkdtemp(prefix="IsoSimilarityTF-", dir=temporary_folder or None)
+        temporary_folder = temporary_folder or tempfile.gettempdir()
+        os.makedirs(temporary_folder, exist_ok=True)
+        remove_stale_folders(temporary_folder)  # those of parents that were killed before they could remove them
+        self.folder = tempfile.mkdtemp(prefix=FOLDER_PREFIX, dir=temporary_folder)
         self.cancelled = False
         self._progress_offset = 0
         self._process = None
         try:
-            np.save(os.path.join(self.folder, VALUES_FILE), np.ascontiguousarray(values))
             request = {
                 "spacing": None if spacing is None else [float(s) for s in spacing],
                 "options": options or {},
                 "parent": os.getpid(),
+                "parent_started": _start_time(os.getpid()),  # guards against another process taking the pid
             }
-            with open(os.path.join(self.folder, REQUEST_FILE), "w", encoding="utf-8") as file:
-                json.dump(request, file)
+            # The request first: should this process be killed while the voxels are written, the folder is a job's
+            # folder of a dead parent, which the next start removes.
+            _write_json(os.path.join(self.folder, REQUEST_FILE), request)
+            np.save(os.path.join(self.folder, VALUES_FILE), np.ascontiguousarray(values))
             package_parent = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
             if os.name == "nt":
                 group = {"creationflags": subprocess.CREATE_NO_WINDOW}
@@ -247,23 +273,159 @@ def _write_json(path: str, data) -> None:
     os.replace(path + ".part", path)
 
 
-def _parent_alive(pid: Optional[int]) -> bool:
-    if pid is None or os.name == "nt":  # on Windows os.kill would terminate it: the folder check remains
-        return True
+def _is_pid(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and 0 < value < 2**31
+
+
+def _proc_stat(pid: int):
+    """``(state, start time in clock ticks after boot)`` of a process from Linux's ``/proc``, or None."""
     try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
+        with open(f"/proc/{pid}/stat", "rb") as file:
+            fields = file.read().rsplit(b")", 1)[1].split()  # after the command name, which may hold anything
+        return fields[0].decode("ascii"), int(fields[19])  # fields 3 and 22 of proc(5)
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+@cache
+def _kernel32():
+    import ctypes
+    from ctypes import wintypes
+
+    kernel32 = ctypes.WinDLL("kernel32", use_last_error=True)
+    kernel32.OpenProcess.argtypes = (wintypes.DWORD, wintypes.BOOL, wintypes.DWORD)
+    kernel32.OpenProcess.restype = wintypes.HANDLE
+    kernel32.WaitForSingleObject.argtypes = (wintypes.HANDLE, wintypes.DWORD)
+    kernel32.WaitForSingleObject.restype = wintypes.DWORD
+    kernel32.GetProcessTimes.argtypes = (wintypes.HANDLE,) + (ctypes.POINTER(wintypes.FILETIME),) * 4
+    kernel32.GetProcessTimes.restype = wintypes.BOOL
+    kernel32.CloseHandle.argtypes = (wintypes.HANDLE,)
+    kernel32.CloseHandle.restype = wintypes.BOOL
+    return kernel32
+
+
+def _windows_process(pid: int):
+    """``(alive, creation time)`` of a Windows process, from a handle to it; ``(True, None)`` where that cannot be
+    told (e.g. access denied), so a live process is never taken for a dead one."""
+    import ctypes
+    from ctypes import wintypes
+
+    synchronize, process_query_limited_information = 0x00100000, 0x1000
+    wait_object_0, error_invalid_parameter = 0, 87
+    kernel32 = _kernel32()
+    handle = kernel32.OpenProcess(synchronize | process_query_limited_information, False, pid)
+    if not handle:
+        return ctypes.get_last_error() != error_invalid_parameter, None  # invalid parameter: no such process
+    try:
+        alive = kernel32.WaitForSingleObject(handle, 0) != wait_object_0  # a process is signalled once it ended
+        times = [wintypes.FILETIME() for _ in range(4)]  # creation, exit, kernel, user
+        created = None
+        if kernel32.GetProcessTimes(handle, *(ctypes.byref(t) for t in times)):
+            created = times[0].dwHighDateTime << 32 | times[0].dwLowDateTime
+        return alive, created
+    finally:
+        kernel32.CloseHandle(handle)
+
+
+def _start_time(pid: int):
+    """When the process started (a number that stays the same while it runs), or None where unknown (macOS)."""
+    if os.name == "nt":
+        return _windows_process(pid)[1]
+    info = _proc_stat(pid)
+    return None if info is None else info[1]
+
+
+def _process_alive(pid: int, started=None) -> bool:
+    """Whether process ``pid`` runs and, when ``started`` (its :func:`_start_time`) is given and the current start
+    time is known, is still the same process rather than another one that got the pid since."""
+    if os.name == "nt":  # os.kill would terminate it
+        alive, now = _windows_process(pid)
+    else:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        except PermissionError:  # it runs, as another user
+            pass
+        info = _proc_stat(pid)
+        if info is not None and info[0] in ("Z", "X"):  # ended, not yet reaped by its own parent
+            return False
+        alive, now = True, None if info is None else info[1]
+    return alive and (not isinstance(started, int) or now is None or now == started)
+
+
+def _parent_alive(pid: Optional[int], started=None) -> bool:
+    return pid is None or _process_alive(pid, started)
+
+
+def _read_record(path: str) -> Optional[dict]:
+    """A small JSON object from a regular file, never through a symbolic link; None if it is anything else."""
+    if not stat.S_ISREG(os.lstat(path).st_mode):
+        return None
+    descriptor = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_BINARY", 0))
+    with os.fdopen(descriptor, "rb") as file:
+        data = file.read(1 << 20)
+    try:
+        record = json.loads(data.decode("utf-8"))
+    except ValueError:
+        return None
+    return record if isinstance(record, dict) else None
+
+
+def _stale(path: str) -> bool:
+    """Whether ``path`` is provably a job folder (see :func:`remove_stale_folders`) whose processes are all gone."""
+    info = os.lstat(path)
+    if not stat.S_ISDIR(info.st_mode) or (hasattr(os, "getuid") and info.st_uid != os.getuid()):
+        return False  # a symbolic link, a file, or another user's
+    request = _read_record(os.path.join(path, REQUEST_FILE))
+    if request is None or any(key not in request for key in REQUEST_KEYS) or not _is_pid(request["parent"]):
         return False
-    except PermissionError:
-        pass
-    return True
+    if _process_alive(request["parent"], request.get("parent_started")):
+        return False
+    if not os.path.lexists(os.path.join(path, CHILD_FILE)):
+        return True  # the child never started (or is starting, and ends itself: its parent is gone)
+    child = _read_record(os.path.join(path, CHILD_FILE))
+    return child is not None and _is_pid(child.get("pid")) and not _process_alive(child["pid"], child.get("started"))
 
 
-def _watch(folder: str, parent: Optional[int]) -> None:
+def remove_stale_folders(temporary_folder: Optional[str] = None) -> list:
+    """Remove the job folders in ``temporary_folder`` (default: the system's) whose parent and child are gone.
+
+    A parent that is killed leaves its job's folder (and the voxels in it) behind; :class:`DesignProcess` calls this
+    as it starts. Only folders that are provably a job's are removed: a real directory, never a symbolic link, named
+    ``IsoSimilarityTF-*``, on POSIX owned by this user, holding a regular request file with :data:`REQUEST_KEYS`,
+    whose parent no longer runs (a pid taken by another process since does not count, where the start time is
+    known) and whose child, if it recorded itself, no longer runs. A folder that cannot be read or removed is left.
+
+    Returns:
+        The folders removed.
+    """
+    folder = temporary_folder or tempfile.gettempdir()
+    try:
+        names = [entry.name for entry in os.scandir(folder) if entry.name.startswith(FOLDER_PREFIX)]
+    except OSError:
+        return []
+    removed = []
+    for name in names:
+        path = os.path.join(folder, name)
+        try:
+            if _stale(path):
+                shutil.rmtree(path)  # does not follow symbolic links inside
+                removed.append(path)
+        except (OSError, UnicodeDecodeError):
+            pass
+    return removed
+
+
+def _watch(folder: str, parent: Optional[int], parent_started=None) -> None:
     """The child's watchdog thread: end the process when it is cancelled, its folder removed or its parent gone."""
     while True:
         time.sleep(WATCH_INTERVAL_S)
-        if os.path.exists(os.path.join(folder, CANCEL_FILE)) or not os.path.isdir(folder) or not _parent_alive(parent):
+        if (
+            os.path.exists(os.path.join(folder, CANCEL_FILE))
+            or not os.path.isdir(folder)
+            or not _parent_alive(parent, parent_started)
+        ):
             os._exit(3)
 
 
@@ -275,7 +437,9 @@ def main(argv=None) -> int:
     folder = argv[-1]
     with open(os.path.join(folder, REQUEST_FILE), encoding="utf-8") as file:
         request = json.load(file)
-    threading.Thread(target=_watch, args=(folder, request.get("parent")), daemon=True).start()
+    _write_json(os.path.join(folder, CHILD_FILE), {"pid": os.getpid(), "started": _start_time(os.getpid())})
+    watch = (folder, request.get("parent"), request.get("parent_started"))
+    threading.Thread(target=_watch, args=watch, daemon=True).start()
     values = np.load(os.path.join(folder, VALUES_FILE), mmap_mode="r")
     with open(os.path.join(folder, PROGRESS_FILE), "a", encoding="utf-8") as progress_file:
 
