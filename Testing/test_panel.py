@@ -306,6 +306,16 @@ def test_g4_a_design_applied_to_another_volume_behind_the_panel_leaves_the_panel
     assert model.session.volume_node is shown and mrml.design_of_volume(other).to_dict() == before
 
 
+def test_g4_a_design_deleted_behind_the_panel_is_shown_as_none(slicer_app, panel_of):
+    view = RecordingView()
+    model = panel_of(view)
+    shown, _ = designed_volume(slicer_app, model)
+    model.session.apply(add_volume(slicer_app, "Other"), hand_made_design())  # a script
+    slicer_app.scene.RemoveNode(mrml.design_text_node(shown))  # the design node deleted (a script, Data module)
+    assert model.hand_over(model.session.export_segmentation) is None
+    assert view.shown is None and model.detail_shown is None
+
+
 def test_g4_nothing_is_handed_over_when_the_panel_shows_no_design(slicer_app, panel_of):
     model = panel_of()
     designed = add_volume(slicer_app, "Designed")
@@ -330,6 +340,10 @@ def test_the_input_follows_the_active_volume_until_the_user_picks_another(slicer
     selection.SetActiveVolumeID(second.GetID())
     model.select_active_volume()  # the module entered again
     assert model.parameters.inputVolume is first
+    model.parameters.inputVolume = None
+    model.select_active_volume()  # entered with nothing selected: the active volume, even when not followed
+    assert model.parameters.inputVolume is second
+    model.parameters.inputVolume = first
     model.volume_picked(second)  # picking the active volume follows it again
     model.parameters.inputVolume = second
     selection.SetActiveVolumeID(first.GetID())
@@ -337,8 +351,14 @@ def test_the_input_follows_the_active_volume_until_the_user_picks_another(slicer
     label_map = slicer_app.scene.AddNewNodeByClass("vtkMRMLLabelMapVolumeNode")
     selection.SetActiveVolumeID(label_map.GetID())  # not a volume the selector lists
     assert model.parameters.inputVolume is first and model.active_volume() is None
+    model.volume_picked(second)  # with no active volume to follow, the input follows the next one
+    assert model.follow_active_volume
+    model.volume_picked(None)
+    assert model.follow_active_volume
+    selection.SetActiveVolumeID(first.GetID())
     model.volume_picked(second)
     model.parameters.inputVolume = second
+    assert not model.follow_active_volume
     slicer_app.scene.Clear(0)  # a new scene: follow the active volume again
     third = add_volume(slicer_app, "Third")
     selection = slicer_app.app_logic.GetSelectionNode()
@@ -384,6 +404,29 @@ def test_apply_here_shows_the_design_and_cancel_changes_nothing(slicer_app, pane
             slicer_app.scene.RemoveNode(volume)
 
     assert model.apply(remove_volume) == VOLUME_REMOVED and not model.running
+
+
+def test_cancel_then_apply_designs_again_and_the_input_chosen_meanwhile_is_shown_after(slicer_app, panel_of):
+    view = RecordingView()
+    model = panel_of(view)
+    volume, other = add_volume(slicer_app, "Nested"), add_volume(slicer_app, "Other")
+    _select(model, volume, bins=32)
+    assert model.apply(lambda *report: model.cancel()) == CANCELLED
+    assert mrml.design_of_volume(volume) is None and view.states == [RUNNING_HERE, "cancelling", IDLE]
+
+    selection = slicer_app.app_logic.GetSelectionNode()
+    model.observe_selection(selection)
+
+    def select_other(stage, fraction, message):  # the active volume changes, then a script selects another volume
+        assert model.apply_volume is volume and model.shown_volume is volume
+        if model.parameters.inputVolume is volume:
+            selection.SetActiveVolumeID(other.GetID())
+            assert model.parameters.inputVolume is volume  # the input is left alone while the design runs
+            model.parameters.inputVolume = other
+
+    assert model.apply(select_other) == DONE and model.apply_volume is None
+    assert mrml.design_of_volume(volume).n_bins == 32 and view.designs[-2].n_bins == 32
+    assert model.shown_volume is other and view.shown is None and not model.running
 
 
 def _poll_until_done(model, timeout=120):
@@ -445,6 +488,33 @@ def test_a_scene_close_ends_a_running_job(slicer_app, panel_of):
     folder = model.job.folder
     slicer_app.scene.Clear(0)
     assert model.job is None and not model.running and not os.path.exists(folder)
+
+
+def test_closing_the_panel_ends_a_running_job(slicer_app):
+    import os
+
+    model = open_panel(slicer_app)
+    _in_child(model)
+    _select(model, add_volume(slicer_app, "Nested"), bins=1024)
+    model.apply(None)
+    folder = model.job.folder
+    model.stop()  # the widget's cleanup: Slicer closes, or Reload
+    assert model.job is None and not model.running and not os.path.exists(folder)
+
+
+def test_a_job_that_cannot_start_leaves_the_panel_idle(slicer_app, panel_of):
+    view = RecordingView()
+    model = panel_of(view)
+    _in_child(model)
+
+    def cannot_start(volume, options=None):
+        raise MemoryError("no room for the volume's copy")
+
+    model.session.start = cannot_start
+    _select(model, add_volume(slicer_app, "Nested"))
+    with pytest.raises(MemoryError):
+        model.apply(None)
+    assert view.states == [RUNNING_CHILD, IDLE] and not model.running and model.apply_volume is None
 
 
 def test_a_bad_option_starts_nothing(slicer_app, panel_of):

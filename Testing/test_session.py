@@ -143,3 +143,68 @@ def test_an_apply_in_slicer_leaves_padding_out_of_the_range_as_the_command_line_
     assert design.value_range == (-3024.0, float(ct.max())) and session.range_warning is None
     session.run(slicer_app.add_volume(ct, name="clean"), {})
     assert session.range_warning is None
+
+
+def test_the_session_keeps_the_similarity_of_its_last_four_designs(slicer_app):
+    """The scene does not store similarity matrices: the session keeps the last MAX_KEPT_SIMILARITIES, by property
+    node, the most recently applied last."""
+    import numpy as np
+
+    from IsoSimilarityTFLib.selftest import SPACING, nested_volume
+    from IsoSimilarityTFLib.session import MAX_KEPT_SIMILARITIES
+
+    assert MAX_KEPT_SIMILARITIES == 4
+    session = DesignSession(slicer_app.volume_rendering_logic)
+    volumes = [slicer_app.add_volume(nested_volume(), spacing=SPACING, name=f"V{i}") for i in range(5)]
+    matrices = []
+    for volume in volumes[:4]:
+        design = hand_made_design()
+        design.similarity = np.full_like(design.similarity, len(matrices))
+        matrices.append(design.similarity)
+        session.apply(volume, design)
+    session.apply(volumes[0], _with_similarity(volumes[0], matrices[0]))  # applied again: the most recent now
+    session.apply(volumes[4], _with_similarity(volumes[4], np.full_like(matrices[0], 4)))
+    kept = {volume.GetName(): session.restore(volume).similarity for volume in volumes}
+    assert kept["V1"] is None  # the oldest left
+    for name, value in (("V0", 0), ("V2", 2), ("V3", 3), ("V4", 4)):
+        assert kept[name] is not None and np.all(kept[name] == value), name
+
+
+def _with_similarity(volume, similarity):
+    design = hand_made_design()
+    design.similarity = similarity
+    return design
+
+
+def test_a_restore_sets_the_unit_distance_only_where_the_design_is_still_shown(slicer_app):
+    """A .vp file (Slicer 5.8's scenes) keeps no unit distance: a restore puts the design's back, but not into a
+    transfer function changed outside (a preset's unit distance is the preset's)."""
+    from IsoSimilarityTFLib.selftest import SPACING, nested_volume
+
+    session = DesignSession(slicer_app.volume_rendering_logic)
+    volume = slicer_app.add_volume(nested_volume(), spacing=SPACING, name="V")
+    design = hand_made_design()
+    design.unit_distance = 0.37
+    node = session.apply(volume, design)
+    prop = node.GetVolumeProperty()
+    prop.SetScalarOpacityUnitDistance(1.0)  # as read back from a .vp file
+    session.forget()
+    session.restore(volume)
+    assert prop.GetScalarOpacityUnitDistance() == pytest.approx(0.37)
+    node.CopyContent(slicer_app.volume_rendering_logic.GetPresetByName("US-Fetal"))
+    preset = prop.GetScalarOpacityUnitDistance()
+    session.restore(volume)
+    assert prop.GetScalarOpacityUnitDistance() == pytest.approx(preset) != pytest.approx(0.37)
+
+
+def test_a_closed_scene_forgets_the_similarities_and_a_removed_volume_is_not_edited(slicer_app):
+    from IsoSimilarityTFLib.selftest import SPACING, nested_volume
+
+    session = DesignSession(slicer_app.volume_rendering_logic)
+    volume = slicer_app.add_volume(nested_volume(), spacing=SPACING, name="V")
+    session.apply(volume, hand_made_design())
+    session.forget()  # the scene is closed (here: the session told so)
+    assert session.design is None and session.restore(volume).similarity is None
+    slicer_app.scene.RemoveNode(volume)
+    with pytest.raises(ValueError, match="not in a scene"):
+        session.edit("tissue", 1, opacity=0.5)

@@ -411,7 +411,7 @@ class PanelModel:
     # Apply -------------------------------------------------------------------------------------------------------
     def _set_apply_state(self, state: str, volume=None) -> None:
         self.apply_state = state
-        self.apply_volume = volume if state != IDLE else None
+        self.apply_volume = volume
         self.view.show_apply_state(state, volume)
         if state == IDLE:
             self.refresh()  # what the parameter node selected meanwhile

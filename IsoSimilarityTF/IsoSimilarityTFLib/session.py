@@ -356,8 +356,6 @@ class DesignSession:
 
     def update(self) -> None:
         """Write the current design into the scene (the property node is shown again if another one was)."""
-        if self.volume_node is None or self.volume_node.GetScene() is None:
-            raise RuntimeError("The volume of this design is no longer in the scene.")
         self.property_node = mrml.update_design(self.volume_node, self.current_design(), self.volume_rendering_logic())
 
     def restyle(self) -> None:
@@ -477,8 +475,6 @@ class DesignSession:
     def export_segmentation(self, which: str = "shown", level: Optional[str] = None):
         """A new segmentation node with one segment per shown (or every) tissue or class of the current design;
         ``level`` None: :meth:`level`."""
-        if self.volume_node is None or self.volume_node.GetScene() is None:
-            raise RuntimeError("The volume of this design is no longer in the scene.")
         level = self.level() if level is None else level
         return mrml.export_segmentation(self.volume_node, self.current_design(), which=which, level=level)
 
