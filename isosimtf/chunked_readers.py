@@ -9,8 +9,12 @@ None of these readers loads the volume: each returns a :class:`~.volume.Volume` 
   ``translation``) give the spacing and origin, in millimetres from the axes' ``unit`` (with a warning when converted),
   its coordinates taken as RAS. Leading axes of one voxel (time, channel) are dropped.
 - TIFF: a multi-page file (``.tif``, ``.tiff``) or a folder of single-plane TIFF files (in natural order: ``plane_2``
-  before ``plane_10``), one page per
-  plane along k, through ``tifffile``'s Zarr view; spacing 1.
+  before ``plane_10``), one page per plane along k, through ``tifffile``'s Zarr view; placed as Slicer's reader (ITK's
+  TIFFImageIO) places it: origin 0, i towards left and j towards posterior (ITK's identity frame is LPS), spacing
+  from the first page's ``XResolution`` / ``YResolution`` when its ``ResolutionUnit`` is inch or centimetre (else 1),
+  1 along k, and rows read bottom to top when its ``Orientation`` says so. Pages that are no planes of one scalar
+  volume (colour samples, a palette, other sizes or types, several series) or that tifffile cannot decode here (LZW,
+  JPEG and more without ``imagecodecs``) are refused in one line.
 - NRRD (``.nrrd``, ``.nhdr``) and MetaImage (``.mha``, ``.mhd``) whose voxels are stored raw (uncompressed) in the
   file after the header or in a detached data file: read from the file a few planes per chunk; geometry as Slicer
   reads it (LPS headers turned to RAS).
@@ -32,6 +36,7 @@ from typing import TYPE_CHECKING, Any, Callable, Optional
 
 import numpy as np
 
+from IsoSimilarityTFLib.errors import VolumeReadError
 from IsoSimilarityTFLib.memory import available_memory_bytes, design_memory_bytes
 
 from .headers import RAW_HEADER_SUFFIXES, StoredVoxels, stored_voxels
@@ -101,7 +106,7 @@ def read_chunked(
         values, spacing, origin = _zarr_volume(path, warn)
         return Volume(values, spacing, origin, name=name)
     if is_chunked_format(path):
-        return Volume(_tiff_volume(path), name=name)
+        return _tiff_volume(path)
     stored = stored if stored is not None else stored_voxels(path)
     if stored is None or not stored.raw:
         raise cannot_read(
@@ -277,6 +282,7 @@ def _zarr_volume(path: Path, warn: Callable[[str], None]) -> tuple[Any, tuple[fl
     while values.ndim > 3 and values.shape[0] == 1:  # OME-Zarr's time and channel axes
         values = values[0]
     _check_3d(path, values.shape)
+    values = _numeric(path, values)
     for note in notes:  # once the volume is accepted
         warn(note)
     return values, spacing, origin
@@ -375,8 +381,21 @@ def _tiff_files(folder: Path) -> list[Path]:
     return sorted((p for p in folder.iterdir() if p.name.lower().endswith(_TIFF_SUFFIXES)), key=_natural_key)
 
 
-def _tiff_volume(path: Path) -> Any:
-    """A multi-page TIFF file or a folder of TIFF planes as a 3-D dask array, one chunk per page."""
+#: Slicer reads a TIFF with ITK's TIFFImageIO, whose frame is LPS with identity directions: in Slicer's RAS, index
+#: i points left and j posterior (IJK to RAS ``diag(-sx, -sy, 1)``), the origin is 0.
+TIFF_DIRECTIONS = np.diag([-1.0, -1.0, 1.0])
+#: Millimetres per unit of the ``ResolutionUnit`` values ITK honours (2: inch, 3: centimetre). With no unit (1) or
+#: none given, ITK's spacing is 1 whatever ``XResolution`` says; along k (pages or planes) it is always 1.
+_TIFF_UNIT_MM = {2: 25.4, 3: 10.0}
+#: TIFF ``Orientation`` values ITK reads: 1 (rows top to bottom) and 4 (bottom to top: ITK flips the rows).
+_TIFF_TOP_LEFT, _TIFF_BOTTOM_LEFT = 1, 4
+#: TIFF ``PhotometricInterpretation`` of a palette (colour-mapped) image.
+_TIFF_PALETTE = 3
+
+
+def _tiff_volume(path: Path) -> Volume:
+    """A multi-page TIFF file or a folder of TIFF planes as a 3-D dask array, one chunk per page, placed as Slicer
+    places it (:data:`TIFF_DIRECTIONS`, the spacing from the first page's resolution tags, :func:`_tiff_spacing`)."""
     import dask.array as da
     import tifffile
     import zarr
@@ -386,48 +405,153 @@ def _tiff_volume(path: Path) -> Any:
         first = _tiff_plane(path, files[0])
         for file in files[1:]:
             plane = _tiff_plane(path, file)
-            if plane != first:
+            if plane[:2] != first[:2]:
                 raise cannot_read(
                     path,
                     f"its TIFF planes differ: {files[0].name} is {first[0]} of {first[1]}, {file.name} is "
                     f"{plane[0]} of {plane[1]}; every plane of the stack needs one size and type",
                 )
+            if plane[2] != first[2]:
+                raise cannot_read(
+                    path, f"its TIFF planes differ in Orientation: {files[0].name} {first[2]}, {file.name} {plane[2]}"
+                )
         store = tifffile.TiffSequence(files).aszarr()
+        page = _tiff_first_page(path, files[0])
     else:
-        _check_tiff_pages(path)
+        page = _check_tiff_pages(path)
         store = tifffile.imread(path, aszarr=True)
+    orientation, spacing = page
     values = da.from_zarr(zarr.open(store, mode="r"))
     _check_3d(path, values.shape)
-    return values
+    values = _numeric(path, values)
+    if orientation == _TIFF_BOTTOM_LEFT:
+        values = values[:, ::-1, :]  # ITK puts the file's last row at j = 0
+    return Volume(values, spacing, (0.0, 0.0, 0.0), TIFF_DIRECTIONS, path.name.split(".")[0] or path.name)
 
 
-def _tiff_plane(folder: Path, file: Path) -> tuple[tuple[int, ...], str]:
-    """Shape and dtype of a single-plane TIFF file of a folder stack (a multi-page or unreadable file refused)."""
+def _tiff_spacing(page: Any) -> tuple[float, float, float]:
+    """Spacing (i, j, k) in mm of a TIFF stack whose first page is ``page``, as ITK's TIFFImageIO gives it: 25.4 /
+    ``XResolution`` along i (``YResolution`` along j) for a ``ResolutionUnit`` of inch, 10 / resolution for a
+    centimetre, else 1 (no unit, no or a non-positive resolution); 1 along k. ITK holds the resolution as float32."""
+    tags = page.tags
+
+    def resolution(name: str) -> float:
+        value = tags.valueof(name, (1, 1))
+        try:
+            number = value[0] / value[1] if isinstance(value, tuple) else float(value)
+        except (ZeroDivisionError, TypeError, IndexError):
+            return 0.0
+        return float(np.float32(number)) if np.isfinite(number) else 0.0
+
+    try:
+        millimetres = _TIFF_UNIT_MM.get(int(tags.valueof("ResolutionUnit", 1)))
+    except (TypeError, ValueError):
+        millimetres = None
+    x, y = resolution("XResolution"), resolution("YResolution")
+    if millimetres is None or not (x > 0 and y > 0):
+        return (1.0, 1.0, 1.0)
+    return (millimetres / x, millimetres / y, 1.0)
+
+
+def _tiff_page_problem(page: Any) -> Optional[str]:
+    """Why a TIFF page is not a plane of a scalar volume as Slicer reads it (None if it is): colour samples, a
+    palette (ITK reads its colours, tifffile its indices), or rows in an order ITK does not read."""
+    samples = int(getattr(page, "samplesperpixel", 1) or 1)
+    if samples != 1:
+        return f"it has {samples} components per voxel (an RGB or multi-sample image); only scalar volumes are read"
+    if int(getattr(page, "photometric", 1)) == _TIFF_PALETTE:
+        return (
+            "its pages are palette (colour-mapped) images, of which Slicer reads the colours, not the stored "
+            "indices: save the values as a grayscale stack"
+        )
+    orientation = int(page.tags.valueof("Orientation", _TIFF_TOP_LEFT))
+    if orientation not in (_TIFF_TOP_LEFT, _TIFF_BOTTOM_LEFT):
+        return f"its TIFF Orientation is {orientation}; Slicer's reader reads rows top-left (1) or bottom-left (4) only"
+    return None
+
+
+def _check_tiff_decodes(path: Path, tiff: Any, page: Any) -> None:
+    """Decode the first strip or tile of ``page``: a compression tifffile cannot decode here (LZW, JPEG, ...
+    without the ``imagecodecs`` package) is refused now, in one line, not found in the middle of the design."""
+    offsets, counts = page.dataoffsets, page.databytecounts
+    if not offsets or not counts or not counts[0]:
+        return
+    tiff.filehandle.seek(offsets[0])
+    data = tiff.filehandle.read(counts[0])
+    try:
+        page.decode(data, 0, jpegtables=page.jpegtables)
+    except Exception as error:  # tifffile raises KeyError, ValueError, ImportError, or the codec's own error
+        compression = getattr(page.compression, "name", str(page.compression))
+        reason = " ".join(str(error).split())
+        if "imagecodecs" in reason:
+            raise cannot_read(
+                path,
+                f"its pages are {compression}-compressed, which tifffile decodes only with the imagecodecs package: "
+                "pip install imagecodecs, or save the stack uncompressed or deflate-compressed",
+            ) from None
+        raise cannot_read(path, f"its first {compression}-compressed page cannot be decoded ({reason})") from None
+
+
+def _tiff_plane(folder: Path, file: Path) -> tuple[tuple[int, ...], str, int]:
+    """Shape, dtype and Orientation of a single-plane TIFF file of a folder stack (a multi-page, colour or
+    unreadable file refused)."""
     import tifffile
 
     try:
         with tifffile.TiffFile(file) as tiff:
             pages = len(tiff.pages)
-            shape, dtype = tuple(tiff.pages[0].shape), str(tiff.pages[0].dtype)
-    except (tifffile.TiffFileError, OSError, ValueError) as error:
+            page = tiff.pages[0]
+            shape, dtype, problem = tuple(page.shape), str(page.dtype), _tiff_page_problem(page)
+            orientation = int(page.tags.valueof("Orientation", _TIFF_TOP_LEFT))
+    except (tifffile.TiffFileError, OSError, ValueError, TypeError) as error:
         raise cannot_read(folder, f"{file.name} is not a readable TIFF file ({error})") from None
+    if problem is not None:
+        raise cannot_read(folder, f"{file.name}: {problem}")
     if pages != 1 or len(shape) != 2:
         raise cannot_read(
             folder, f"{file.name} holds {pages} page(s) of shape {shape}: a folder stack needs one 2-D plane a file"
         )
-    return shape, dtype
+    return shape, dtype, orientation
 
 
-def _check_tiff_pages(path: Path) -> None:
-    """Refuse a multi-page TIFF file whose pages differ in size or type, or form several series: tifffile reads its
-    first series only, a part of the file that would pass for the whole volume."""
+def _tiff_first_page(folder: Path, file: Path) -> tuple[int, tuple[float, float, float]]:
+    """Orientation and spacing of a folder stack, from its first plane (checked to decode)."""
     import tifffile
 
     try:
+        with tifffile.TiffFile(file) as tiff:
+            page = tiff.pages[0]
+            _check_tiff_decodes(folder, tiff, page)
+            return int(page.tags.valueof("Orientation", _TIFF_TOP_LEFT)), _tiff_spacing(page)
+    except VolumeReadError:
+        raise
+    except (tifffile.TiffFileError, OSError, ValueError, TypeError) as error:
+        raise cannot_read(folder, f"{file.name} is not a readable TIFF file ({error})") from None
+
+
+def _check_tiff_pages(path: Path) -> tuple[int, tuple[float, float, float]]:
+    """Refuse a multi-page TIFF file whose pages differ in size or type, or form several series (tifffile reads its
+    first series only, a part of the file that would pass for the whole volume), or are no planes of a scalar volume
+    (:func:`_tiff_page_problem`), or cannot be decoded here; return the Orientation and spacing of its pages."""
+    import tifffile
+
+    pages, orientations, compressions = [], set(), {}
+    try:
         with tifffile.TiffFile(path) as tiff:
-            pages = [(page.shape, page.dtype) for page in tiff.pages]
+            for page in tiff.pages:  # one pass: a stack may have thousands of pages
+                pages.append((page.shape, page.dtype))
+                problem = _tiff_page_problem(page)
+                if problem is not None:
+                    raise cannot_read(path, problem)
+                orientations.add(int(page.tags.valueof("Orientation", _TIFF_TOP_LEFT)))
+                compressions.setdefault((page.compression, page.predictor), page)
             series = len(tiff.series)
-    except (tifffile.TiffFileError, OSError, ValueError) as error:
+            for page in compressions.values():
+                _check_tiff_decodes(path, tiff, page)
+            spacing = _tiff_spacing(tiff.pages[0])
+    except VolumeReadError:
+        raise
+    except (tifffile.TiffFileError, OSError, ValueError, TypeError) as error:
         raise cannot_read(path, f"not a readable TIFF file ({error})") from None
     other = next((n for n, page in enumerate(pages) if page != pages[0]), None)
     if other is not None:
@@ -437,10 +561,24 @@ def _check_tiff_pages(path: Path) -> None:
             f"its TIFF pages differ: page 1 is {shape} of {dtype}, page {other + 1} is {other_shape} of {other_dtype}; "
             "every page of the stack needs one size and type",
         )
+    if len(orientations) > 1:
+        raise cannot_read(path, f"its TIFF pages differ in Orientation ({', '.join(map(str, sorted(orientations)))})")
     if series > 1:
         raise cannot_read(
             path, f"its TIFF pages form {series} separate images (series), of which one would be read: save one stack"
         )
+    return orientations.pop(), spacing
+
+
+def _numeric(path: Path, values: Any) -> Any:
+    """The voxels of a Zarr array or TIFF stack as numbers in native byte order: booleans as uint8 (as ``.npy``
+    inputs), big-endian values swapped as they are read; strings, complex numbers, dates refused in one line."""
+    dtype = values.dtype
+    if dtype.kind == "b":
+        return values.astype(np.uint8)
+    if dtype.kind not in "iuf":
+        raise cannot_read(path, f"its voxels are of type {dtype}; a number type (int16, uint8, float32, ...) is needed")
+    return values if dtype.isnative else values.astype(dtype.newbyteorder("="))
 
 
 def _check_3d(path: Path, shape: tuple[int, ...]) -> None:
