@@ -350,3 +350,138 @@ def test_tiff_pages_that_differ_are_refused(tmp_path: Path, capfd, other: str) -
     assert (
         f"its TIFF pages differ: page 1 is ({NJ}, {NI}) of uint16, page {NK + 1} is {last.shape} of {last.dtype}" in err
     )
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# 8. A DICOM folder of very many files says first how long it takes, and shows its progress
+# ---------------------------------------------------------------------------------------------------------------
+
+#: Files of the large folder: a few thousand, as the 100,000 of the issue take minutes.
+MANY = 2000
+
+
+def _tiny_dicom_series(folder: Path, count: int) -> None:
+    """``count`` CT slices of 2 x 2 voxels, one a file, 1 mm apart: one file written by pydicom, copied with its
+    slice position, instance UID and voxels (the file's last bytes) replaced, so thousands take a fraction of a
+    second."""
+    pydicom = pytest.importorskip("pydicom")
+    from pydicom.dataset import Dataset, FileMetaDataset
+    from pydicom.uid import CTImageStorage, ExplicitVRLittleEndian
+
+    uid = "1.2.826.0.1.3680043.10.1326.26"
+    meta = FileMetaDataset()
+    meta.MediaStorageSOPClassUID, meta.TransferSyntaxUID = CTImageStorage, ExplicitVRLittleEndian
+    meta.MediaStorageSOPInstanceUID = f"{uid}.9.1999999"
+    ds = Dataset()
+    ds.file_meta = meta
+    ds.SOPClassUID, ds.SOPInstanceUID = CTImageStorage, meta.MediaStorageSOPInstanceUID
+    ds.Modality, ds.StudyInstanceUID, ds.SeriesInstanceUID = "CT", f"{uid}.1", f"{uid}.2"
+    ds.ImagePositionPatient, ds.ImageOrientationPatient, ds.PixelSpacing = (
+        ["0", "0", "888888"],
+        [1, 0, 0, 0, 1, 0],
+        [1, 1],
+    )
+    ds.Rows = ds.Columns = 2
+    ds.SamplesPerPixel, ds.PhotometricInterpretation = 1, "MONOCHROME2"
+    ds.BitsAllocated, ds.BitsStored, ds.HighBit, ds.PixelRepresentation = 16, 16, 15, 1
+    ds.PixelData = np.array([0, 100, 200, 300], "<i2").tobytes()
+    buffer = io.BytesIO()
+    ds.save_as(buffer, enforce_file_format=True)
+    template = buffer.getvalue()
+    assert template.count(b"1999999") == 2 and template.count(b"888888") == 1 and pydicom
+    folder.mkdir()
+    for k in range(count):
+        named = template.replace(b"1999999", b"1%06d" % k).replace(b"888888", b"%06d" % k)
+        voxels = np.array([0, 1000, 2000, 3000], "<i2") + (k * 397 % 1000)  # the file's last bytes
+        (folder / f"IM{k:06d}").write_bytes(named[:-8] + voxels.tobytes())
+
+
+@pytest.fixture(scope="module")
+def many_dicom_files(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("many") / "series"
+    _tiny_dicom_series(folder, MANY)
+    return folder
+
+
+@needs_slicer
+def test_a_dicom_folder_of_many_files_says_first_how_long_it_takes(
+    many_dicom_files: Path, tmp_path: Path, capfd, monkeypatch
+) -> None:
+    """Before: 100,000 tiny files took minutes without a word. Past the bound (lowered here to MANY - 1), one warning
+    line before the headers are read; the run goes on (exit 0) and reads every slice."""
+    from isosimtf import slicer_readers
+
+    monkeypatch.setattr(slicer_readers, "MANY_DICOM_FILES", MANY - 1)
+    code, err = _run(many_dicom_files, tmp_path, capfd)
+    assert code == 0, err
+    assert err == (
+        f"isosimtf: warning: '{many_dicom_files}' holds {MANY} DICOM files: reading their headers and voxels takes "
+        f"about {slicer_readers._duration(slicer_readers.dicom_read_seconds(MANY))} here (Slicer's reader slows down "
+        "with the square of the number of files); Ctrl+C stops it\n"
+    )
+    assert json.loads((tmp_path / "out" / "classes.json").read_text())["input"]["shape"] == [MANY, 2, 2]
+
+
+@needs_slicer
+@pytest.mark.parametrize("bound", [MANY - 1, MANY], ids=["above-the-bound", "at-the-bound"])
+def test_the_estimate_starts_just_above_the_bound(many_dicom_files: Path, monkeypatch, bound: int) -> None:
+    from isosimtf import slicer_readers
+
+    monkeypatch.setattr(slicer_readers, "MANY_DICOM_FILES", bound)
+    said: list[str] = []
+    assert len(slicer_readers.dicom_series(many_dicom_files, said.append)) == MANY
+    assert len(said) == (MANY > bound) and all(f"holds {MANY} DICOM files" in line for line in said)
+
+
+@needs_slicer
+def test_a_small_dicom_folder_prints_nothing_extra(tmp_path: Path, capfd) -> None:
+    _tiny_dicom_series(tmp_path / "series", 5)
+    assert _run(tmp_path / "series", tmp_path, capfd) == (0, "")
+
+
+def test_the_estimate_grows_with_the_square_of_the_files() -> None:
+    """The bound is about ten seconds of reading; 100,000 files, the issue's folder, take minutes."""
+    from isosimtf.slicer_readers import MANY_DICOM_FILES, _duration, dicom_read_seconds
+
+    assert 5.0 <= dicom_read_seconds(MANY_DICOM_FILES) <= 20.0
+    assert _duration(dicom_read_seconds(100_000)) == "9 minutes"
+    assert dicom_read_seconds(24_000) == pytest.approx(9.6 + 28.8)  # measured: 9.6 s of headers, 29.2 s of reading
+
+
+class _Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+@needs_slicer
+def test_reading_a_dicom_folder_shows_its_progress_on_a_terminal(many_dicom_files: Path) -> None:
+    """The read stage's line shows each pass (looking for DICOM files, their headers, Slicer reading the slices),
+    at most about a hundred updates a pass, however many files."""
+    from isosimtf.console import ProgressPrinter
+    from isosimtf.volume_io import read_volume
+
+    terminal = _Terminal()
+    progress = ProgressPrinter(5, stream=terminal)
+    progress.stage("read", str(many_dicom_files))
+    assert read_volume(many_dicom_files).shape == (MANY, 2, 2)
+    progress.finish()
+    updates = terminal.getvalue().split("\r\x1b[K")[1:]
+    for step in ("looking for DICOM files", "DICOM headers", f"reading {MANY} slices"):
+        mine = [u for u in updates if u.startswith(f"[1/5] read {many_dicom_files}: {step}")]
+        assert 10 <= len(mine) <= 110, (step, len(mine))
+    assert f"DICOM headers {MANY}/{MANY}" in updates[-1] or f"reading {MANY} slices" in updates[-1]
+    assert "looking for DICOM files 1000/2000 [##########..........]  50%" in terminal.getvalue()
+
+
+def test_progress_is_shown_nowhere_without_a_printer(many_dicom_files: Path) -> None:
+    """The Python API (no progress printer; or one that is gone) shows nothing and keeps no printer alive."""
+    import gc
+
+    from isosimtf import read_errors
+    from isosimtf.console import ProgressPrinter
+
+    terminal = _Terminal()
+    ProgressPrinter(2, stream=terminal).stage("read")
+    gc.collect()
+    read_errors.report_progress("DICOM headers 1/2", 0.5)  # the printer is gone: nowhere
+    assert "DICOM headers" not in terminal.getvalue()

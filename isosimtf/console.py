@@ -6,6 +6,7 @@ from typing import TYPE_CHECKING, Optional, TextIO
 from IsoSimilarityTFLib.design import STAGES as DESIGN_STAGES
 
 from .formatting import color_hex, format_percent, format_ranges, value_decimals
+from .read_errors import set_progress_sink
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     from .outputs import RunResult
@@ -31,9 +32,11 @@ class ProgressPrinter:
         self.tty = bool(isatty()) if callable(isatty) else False
 
     def stage(self, name: str, detail: str = "") -> None:
-        """Start the next stage: print ``[i/N] name detail``."""
+        """Start the next stage: print ``[i/N] name detail``. Long reads during the stage show their steps on its
+        line (:meth:`show_step`, through :func:`.read_errors.report_progress`)."""
         self.index += 1
         self._line = f"[{self.index}/{self.total}] {name}" + (f" {detail}" if detail else "")
+        set_progress_sink(self.show_step)
         if self.quiet:
             return
         self._end_line()
@@ -49,6 +52,10 @@ class ProgressPrinter:
             return
         self.stream.write(f"\r\x1b[K{self._line}: {message}")
         self.stream.flush()
+
+    def show_step(self, message: str, fraction: float) -> None:
+        """Show a step of a long pass of the current stage, with a bar while it runs (terminals only)."""
+        self.update(f"{message} {progress_bar(fraction)}" if 0.0 < fraction < 1.0 else message)
 
     def finish(self) -> None:
         """End the current line (call before printing anything else on the stream)."""

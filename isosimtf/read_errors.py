@@ -1,5 +1,6 @@
-"""How a failed read is reported: one line naming the file, never the C++ libraries' own printing; and how a read
-that succeeded with something the user must know (a unit converted, an array chosen) says so: one warning line.
+"""How a failed read is reported: one line naming the file, never the C++ libraries' own printing; how a read
+that succeeded with something the user must know (a unit converted, an array chosen) says so: one warning line; and
+how a long read (a folder of many DICOM files) shows how far it has come: :func:`report_progress`.
 
 VTK reports errors through its output window and its logger; ITK and teem also write straight to the process's
 standard error. During a read both are captured (VTK's messages as the renderer captures them, file descriptor 2 into
@@ -13,8 +14,10 @@ import stat
 import sys
 import tempfile
 import warnings
+import weakref
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Callable, Optional
 
 from IsoSimilarityTFLib.errors import VolumeReadError
 
@@ -113,3 +116,42 @@ def regular_file(owner: Path, file: Path, role: str) -> Path:
         advice = "give a volume file or folder" if file == owner else "voxels are read from regular files only"
         raise cannot_read(owner, f"{subject} is not a regular file (a FIFO, socket or device): {advice}")
     return file
+
+
+#: Where a long read shows how far it has come: a bound method ``show(message, fraction)``, held weakly, set by the
+#: command's progress printer when a stage starts (:meth:`.console.ProgressPrinter.stage`); None: nowhere.
+_progress_sink: Optional["weakref.WeakMethod[Callable[[str, float], None]]"] = None
+
+
+def set_progress_sink(show: Optional[Callable[[str, float], None]]) -> None:
+    """Show the progress of long reads through the bound method ``show(message, fraction)`` from now on (None: show
+    it nowhere). The readers have no progress printer handed to them: they call :func:`report_progress`."""
+    global _progress_sink
+    _progress_sink = weakref.WeakMethod(show) if show is not None else None  # type: ignore[arg-type]
+
+
+def report_progress(message: str, fraction: float) -> None:
+    """Show that a long read is at ``fraction`` (0 to 1) of its work, ``message`` saying what it is doing; nothing
+    when no progress is shown (the Python API, ``--quiet``, a stream that is not a terminal)."""
+    show = _progress_sink() if _progress_sink is not None else None
+    if show is not None:
+        show(message, fraction)
+
+
+class ItemProgress:
+    """The progress of a pass over ``total`` items (files), reported at most about a hundred times: cheap enough to
+    call for every item of a folder of 100,000 files.
+
+    Args:
+        message: what the pass does, e.g. ``"DICOM headers"``; the report reads ``"DICOM headers 1200/100000"``.
+        total: the items of the pass.
+    """
+
+    def __init__(self, message: str, total: int) -> None:
+        self.message, self.total = message, total
+        self.every = max(1, total // 100)
+
+    def done(self, count: int) -> None:
+        """``count`` items are done."""
+        if count % self.every == 0 or count == self.total:
+            report_progress(f"{self.message} {count}/{self.total}", count / max(1, self.total))

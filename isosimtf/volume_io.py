@@ -789,7 +789,7 @@ READERS: tuple[Reader, ...] = (
     Reader(
         "DICOM",
         lambda path: path.is_dir() or slicer_readers.is_dicom_file(path),
-        lambda path, name, n_bins, warn: _read_with_slicer(path, slicer_readers.dicom_series(path), name, n_bins),
+        lambda path, name, n_bins, warn: _read_with_slicer(path, slicer_readers.dicom_series(path, warn), name, n_bins),
     ),
     Reader(".npy", _suffix(".npy"), lambda path, name, n_bins, warn: _read_npy(path, name, n_bins)),
     Reader("InVesalius", _suffix(".inv3"), lambda path, name, n_bins, warn: _read_inv3(path, name, n_bins)),
