@@ -1,6 +1,7 @@
 """A dask volume, streamed chunk row by chunk row, gives exactly the design of the same volume held in memory."""
 
 import itertools
+from functools import partial
 
 import dask.array as da
 import numpy as np
@@ -14,7 +15,9 @@ from IsoSimilarityTFLib import (
     quantize,
     similarity,
 )
-from IsoSimilarityTFLib.chunked import is_dask_array, quantize_chunked
+from IsoSimilarityTFLib.quantize import Quantization, bin_volume, bins_dtype
+from IsoSimilarityTFLib.source import VolumeSource, is_dask_array
+from IsoSimilarityTFLib.survey import survey_volume
 
 RULES = list(itertools.product(("inclusive", "strict"), ("thesis", "ma-entezari")))
 # Irregular chunks, one voxel thick ones included, on an odd shape.
@@ -37,13 +40,19 @@ def test_dask_arrays_are_recognised_without_importing_dask_for_others():
 
 @pytest.mark.parametrize("dtype", [np.int16, np.float32, np.uint8])
 @pytest.mark.parametrize("n_bins,value_range", [(256, None), (1000, None), (64, (-500.0, 900.0))])
-def test_quantized_chunks_equal_the_in_memory_bins(dtype, n_bins, value_range):
+def test_binned_chunks_equal_the_in_memory_bins(dtype, n_bins, value_range):
+    """The design's path for a dask volume: its survey, then its chunks binned lazily with the whole volume's range."""
     values = blob_volume(dtype)
     expected = quantize(values, n_bins, value_range)
     for chunks in CHUNKS:
-        quantized = quantize_chunked(da.from_array(values, chunks=chunks), n_bins, value_range)
-        assert quantized.value_range == expected.value_range and quantized.n_bins == expected.n_bins
-        np.testing.assert_array_equal(np.asarray(quantized.bins), expected.bins)
+        source = VolumeSource(da.from_array(values, chunks=chunks))
+        survey = survey_volume(source)
+        assert survey.data_range == (float(values.min()), float(values.max()))
+        binning = partial(bin_volume, n_bins=n_bins, value_range=expected.value_range, data_range=survey.data_range)
+        bins = source.map_slabs(binning, bins_dtype(n_bins))
+        assert bins.lazy
+        np.testing.assert_array_equal(np.asarray(bins.values), expected.bins)
+        quantized = Quantization(bins.values, n_bins, expected.value_range)
         np.testing.assert_array_equal(quantized.voxel_counts(), expected.voxel_counts())
 
 

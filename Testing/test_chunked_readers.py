@@ -10,7 +10,7 @@ import pytest
 from volume_writers import write_volume
 
 from IsoSimilarityTFLib import memory
-from IsoSimilarityTFLib.chunked import is_dask_array
+from IsoSimilarityTFLib.source import is_dask_array
 from isosimtf import chunked_readers, cli, headers, run
 from isosimtf.phantom import head_phantom
 from isosimtf.read_errors import VolumeReadWarning

@@ -9,7 +9,7 @@ import dask.array as da
 import numpy as np
 import pytest
 
-from IsoSimilarityTFLib import design_transfer_function, isovalue_similarity, quantize, similarity
+from IsoSimilarityTFLib import design_transfer_function, isovalue_similarity, quantize, similarity, source
 from IsoSimilarityTFLib.cells import OctreeBuilder, unit_cell_slabs
 
 RULES = list(itertools.product(("inclusive", "strict"), ("thesis", "ma-entezari")))
@@ -24,7 +24,7 @@ def random_chunks(rng: np.random.Generator, n: int) -> tuple[int, ...]:
 @pytest.fixture
 def every_chunk_row_a_part(monkeypatch):
     """Parts as many as rows of chunks, run one after the other in this process (dask's synchronous scheduler)."""
-    monkeypatch.setattr(similarity, "_similarity_workers", lambda: 1 << 20)
+    monkeypatch.setattr(source, "_workers", lambda: 1 << 20)
     with dask.config.set(scheduler="sync"):
         yield
 
@@ -158,14 +158,14 @@ def test_parts_read_their_chunks_once(every_chunk_row_a_part):
 # started it, and the render tests check that the test process has no child left.
 IN_PROCESSES = """
 import dask, dask.array as da, numpy as np
-from IsoSimilarityTFLib import isovalue_similarity, quantize, similarity
+from IsoSimilarityTFLib import isovalue_similarity, quantize, source
 
 if __name__ == "__main__":
     values = quantize(np.random.default_rng(3).normal(size=(40, 10, 11)), 100).bins
     expected = isovalue_similarity(values, 100)
     progress = []
     with dask.config.set(scheduler="processes", num_workers=2):
-        assert similarity._similarity_workers() == 2
+        assert source._workers() == 2
         result = isovalue_similarity(
             da.from_array(values, chunks=(6, 10, 11)), 100, progress=lambda fraction, _: progress.append(fraction)
         )

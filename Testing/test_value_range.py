@@ -83,3 +83,19 @@ def test_volumes_read_lazily_get_the_same_range() -> None:
     robust = robust_value_range(values)
     assert robust.excludes and robust.padding[0][0] == -3024
     assert robust_value_range(da.from_array(values, chunks=8)) == robust
+
+
+def test_the_api_leaves_padding_out_as_the_command_line_and_the_panel_do() -> None:
+    """One design whoever calls the engine: design_transfer_function applies the robust range itself, says what it
+    left out, and an explicit range turns it off."""
+    ct = _head_ct()[::2, ::2, ::2].copy()
+    padded = ct.copy()
+    padded[:, :, :20] = -3024
+    design = design_transfer_function(padded, n_bins=64)
+    assert design.value_range == (float(ct.min()), float(ct.max()))
+    assert design.options["value_range"] is None  # the user's option, as given
+    assert "padding voxels at -3024" in design.range_warning("--range LOW HIGH")
+    assert design.robust_range == robust_value_range(padded)
+    given = design_transfer_function(padded, n_bins=64, value_range=(-3024, float(ct.max())))
+    assert given.value_range == (-3024.0, float(ct.max())) and given.range_warning() is None
+    assert design_transfer_function(ct, n_bins=64).range_warning() is None

@@ -6,9 +6,9 @@ from typing import Callable, Optional, Union
 
 import numpy as np
 
-from IsoSimilarityTFLib.chunked import is_dask_array
 from IsoSimilarityTFLib.errors import UsageError
 from IsoSimilarityTFLib.memory import check_memory
+from IsoSimilarityTFLib.source import is_dask_array
 
 from .volume_io import Volume, read_volume
 

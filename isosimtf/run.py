@@ -9,12 +9,11 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from IsoSimilarityTFLib.chunked import is_dask_array
 from IsoSimilarityTFLib.design import STAGES as DESIGN_STAGES
 from IsoSimilarityTFLib.design import design_transfer_function
 from IsoSimilarityTFLib.errors import RenderError, UsageError
 from IsoSimilarityTFLib.options import DEFAULT_OPTIONS, LOOK_NAMES
-from IsoSimilarityTFLib.value_range import with_robust_range
+from IsoSimilarityTFLib.source import is_dask_array
 
 from .chunked_readers import preview_step, read_preview
 from .console import ProgressPrinter
@@ -230,15 +229,15 @@ def _run_locked(
         info = input_info(source, volume)
         for message in _input_warnings(info, n_bins, volume.values):
             warning(message)
-        # Padding and outliers left out of the default range, as the Slicer module leaves them out.
-        options, range_warning = with_robust_range(volume.values, options, "--range LOW HIGH")
-        if range_warning is not None:
-            warning(range_warning)
         step = preview_step(volume.shape) if render and info["read_lazily"] else None
         if step is not None and step > 1:
             warning(_preview_warning(volume.shape, volume.spacing, step))
 
         design = design_transfer_function(volume.values, volume.spacing, progress=progress.design_callback, **options)
+        # Padding and outliers the design's default range left out, as the Slicer module says.
+        range_warning = design.range_warning("--range LOW HIGH")
+        if range_warning is not None:
+            warning(range_warning)
         offered = [offered.name for offered in design.looks]
         if look is not None and look not in offered:
             raise UsageError(f"--look {look} is not offered for this volume; its looks: {', '.join(offered)}")

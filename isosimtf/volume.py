@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from IsoSimilarityTFLib.chunked import is_dask_array
+from IsoSimilarityTFLib.source import is_dask_array
 
 __all__ = ["Volume", "right_handed"]
 

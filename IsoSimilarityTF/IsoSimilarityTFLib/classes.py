@@ -109,7 +109,7 @@ def background_contact(bins: np.ndarray, labels: np.ndarray, background_id: int)
     Args:
         bins: quantized volume, shape ``(n0, n1, n2)``: numpy, dask (only the planes measured are read), or anything
             with ``shape`` whose planes ``bins[k]`` can be read for the planes of :func:`contact_planes` and their
-            neighbours (:class:`~.chunked.SlabTap`'s planes).
+            neighbours (:class:`~.taps.SlabTap`'s kept planes).
         labels: ``(n_bins,)`` class id per bin.
         background_id: the background class.
 
@@ -148,6 +148,12 @@ def contact_planes(shape: tuple[int, int, int]) -> range:
     their neighbours): evenly spaced, about ``_CONTACT_SAMPLE_VOXELS`` voxels in all."""
     step = max(1, int(np.prod(shape, dtype=np.float64)) // _CONTACT_SAMPLE_VOXELS)
     return range(0, shape[0], step)
+
+
+def planes_read(shape: tuple[int, int, int]) -> list[int]:
+    """Every plane :func:`background_contact` reads of a volume of ``shape`` voxels: the :func:`contact_planes` and
+    their neighbours along axis 0."""
+    return sorted({k + d for k in contact_planes(shape) for d in (-1, 0, 1) if 0 <= k + d < shape[0]})
 
 
 def _plane_classes(twice_class_of_bin: np.ndarray, plane: np.ndarray, background: int) -> tuple[np.ndarray, np.ndarray]:

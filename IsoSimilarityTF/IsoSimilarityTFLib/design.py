@@ -7,20 +7,23 @@ import zlib
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Callable, Optional, Union
 
 import numpy as np
 
-from .chunked import SlabTap, chunk_row_bytes, is_dask_array, quantize_chunked
-from .classes import IsovalueClass, _flag, build_classes, runs
+from .classes import IsovalueClass, _flag, build_classes, planes_read, runs
 from .clustering import FALLBACK_DAMPINGS, cluster_isovalues, unconverged_advice
 from .errors import ClusteringError
 from .gallery import GalleryLook, LookContext, check_look, first_look_name, gallery, make_look
 from .look import bin_opacity_of, class_mean_values, detect_kind, gradient_ramp_top
 from .memory import check_memory
 from .options import DEFAULT_OPTIONS, KINDS, LOOK_NAMES, OPTIONS, check_options
-from .quantize import Quantization, quantize
+from .quantize import Quantization, bin_volume, bins_dtype, checked_n_bins, resolved_value_range
 from .similarity import isovalue_similarity
+from .source import VolumeSource
+from .survey import checked_data_range, survey_volume
+from .taps import SlabTap
 from .thumbnails import render_thumbnail
 from .tissues import TissueHierarchy, tissue_hierarchy
 from .transfer_function import (
@@ -31,7 +34,8 @@ from .transfer_function import (
     write_vp,
     write_vp_json,
 )
-from .visibility import PREVIEW_VOXELS, Preview, enclosure, preview_bins, preview_steps
+from .value_range import RobustRange, robust_value_range
+from .visibility import PREVIEW_VOXELS, Preview, enclosure, preview_steps
 
 StageProgress = Callable[[str, float, str], None]
 
@@ -125,6 +129,8 @@ class TransferFunctionDesign:
             presets) for a design saved before it followed the volume.
         look_name: the look of the gallery chosen with :meth:`use_look` (None: the first click's); a regrouping
             keeps it.
+        robust_range: what the default value range of the run that made the design left out (padding, outliers;
+            see :mod:`.value_range`), or None (a range was given; not serialized): :meth:`range_warning` says it.
     """
 
     value_range: tuple[float, float]
@@ -145,6 +151,7 @@ class TransferFunctionDesign:
     preview: Optional[Preview] = field(default=None, repr=False)
     unit_distance: float = 1.0
     look_name: Optional[str] = None
+    robust_range: Optional[RobustRange] = field(default=None, repr=False, compare=False)
     _gallery: Optional[list[GalleryLook]] = field(default=None, init=False, repr=False, compare=False)
     # The current grouping's look context (see look_context): the gallery reuses the renders its first look needed.
     _context: Optional[LookContext] = field(default=None, init=False, repr=False, compare=False)
@@ -302,6 +309,11 @@ class TransferFunctionDesign:
         if self._gallery is None:
             self._gallery = gallery(self.look_context())
         return self._gallery
+
+    def range_warning(self, override: str = "value_range=(low, high)") -> Optional[str]:
+        """One line saying what the default value range left out, and how to choose another (``override``: how the
+        caller's user sets the range); None when it left nothing out or a range was given."""
+        return self.robust_range.warning(override) if self.robust_range is not None else None
 
     @property
     def chosen_look(self) -> str:
@@ -664,6 +676,42 @@ def _clustering_progress(report: Callable[[str, float, str], None], n_bins: int,
     return on_iteration
 
 
+def _source(values, opts: dict) -> Union[VolumeSource, Quantization]:
+    """The volume as a source (an already quantized volume as it is), once the memory the design needs is checked;
+    sets ``opts``' ``n_bins`` (and ``value_range`` of a quantized volume)."""
+    if isinstance(values, Quantization):
+        check_memory(np.shape(values.bins), values.n_bins)
+        opts["n_bins"], opts["value_range"] = values.n_bins, list(values.value_range)
+        return values
+    source = VolumeSource(values)
+    opts["n_bins"] = n_bins = checked_n_bins(opts["n_bins"])
+    row_bytes = source.row_bytes(bins_dtype(n_bins).itemsize)
+    check_memory(source.shape, n_bins, streamed=source.lazy, row_bytes=row_bytes)
+    return source
+
+
+def _binned(
+    source: Union[VolumeSource, Quantization], opts: dict, progress: Callable[[float], None]
+) -> tuple[VolumeSource, tuple[float, float], Optional[RobustRange]]:
+    """The volume's bins (lazy for a dask volume: binned as the stream reads it), the value range they cover, and
+    what the default range left out (None: nothing, or a range was given).
+
+    The survey (one pass: :func:`~.survey.survey_volume`) gives the range the rules of :mod:`.value_range` decide on
+    (padding and outliers left out) unless ``opts["value_range"]`` gives one.
+    """
+    if isinstance(source, Quantization):
+        return VolumeSource(source.bins), tuple(source.value_range), None
+    n_bins = opts["n_bins"]
+    survey = survey_volume(source, progress=progress)
+    data_range = checked_data_range(survey, n_bins)
+    robust = robust_value_range(source, survey=survey) if opts["value_range"] is None else None
+    if robust is not None and not robust.excludes:
+        robust = None
+    value_range = resolved_value_range(robust.value_range if robust else opts["value_range"], data_range)
+    binning = partial(bin_volume, n_bins=n_bins, value_range=value_range, data_range=data_range)
+    return source.map_slabs(binning, bins_dtype(n_bins)), value_range, robust
+
+
 def design_transfer_function(
     values: Union[np.ndarray, Quantization],
     spacing: Optional[Sequence[float]] = None,
@@ -713,31 +761,21 @@ def design_transfer_function(
         yield
         timings[name] = time.perf_counter() - start
 
-    chunked = is_dask_array(values)
-    shape = np.shape(values.bins if isinstance(values, Quantization) else values)
-    row_bytes = chunk_row_bytes(values, opts["n_bins"]) if chunked else 0
-    check_memory(shape, opts["n_bins"], streamed=chunked, row_bytes=row_bytes)
+    source = _source(values, opts)
     with stage("quantize", "quantizing"):
-        if isinstance(values, Quantization):
-            quantized = values
-            opts["n_bins"], opts["value_range"] = quantized.n_bins, list(quantized.value_range)
-        elif chunked:
-            quantized = quantize_chunked(
-                values,
-                opts["n_bins"],
-                opts["value_range"],
-                lambda fraction, message: report("quantize", fraction, message),
-            )
-        else:
-            quantized = quantize(values, opts["n_bins"], opts["value_range"])
+        bins, value_range, robust = _binned(
+            source, opts, lambda fraction: report("quantize", fraction, "quantize: value range")
+        )
+    n_bins, shape = opts["n_bins"], bins.shape
 
-    # A streamed volume's voxel counts and background-contact planes are gathered during the similarity's pass.
+    # One pass over the bins: the similarity's counts, and (its tap) the voxel counts, the planes the background
+    # contact is measured on and the look's preview.
     steps, preview_spacing = preview_steps(shape, spacing)
-    tap = SlabTap(shape, quantized.n_bins, preview_steps=steps) if chunked else None
+    tap = SlabTap(shape, n_bins, preview_steps=steps, kept_planes=planes_read(shape))
     with stage("similarity", "measuring isosurface similarity"):
         similarity = isovalue_similarity(
-            quantized.bins,
-            quantized.n_bins,
+            bins,
+            n_bins,
             crossing=opts["crossing"],
             normalization=opts["normalization"],
             levels=opts["levels"],
@@ -760,7 +798,7 @@ def design_transfer_function(
                 preference=opts["preference"],
                 damping=damping,
                 empty_isovalues=similarity.empty_isovalues,
-                on_iteration=_clustering_progress(report, quantized.n_bins, damping),
+                on_iteration=_clustering_progress(report, n_bins, damping),
                 **iterations,
             )
             if clusters.converged:
@@ -772,14 +810,10 @@ def design_transfer_function(
             )
 
     with stage("classes", "ranking classes"):
-        bin_voxels = quantized.voxel_counts() if tap is None else tap.voxel_counts
+        bin_voxels = tap.voxel_counts
+        edges = np.linspace(value_range[0], value_range[1], n_bins + 1)
         classes = build_classes(
-            clusters.labels,
-            clusters.exemplars,
-            bin_voxels,
-            quantized.edges,
-            background=opts["background"],
-            bins=quantized.bins if tap is None else tap,
+            clusters.labels, clusters.exemplars, bin_voxels, edges, background=opts["background"], bins=tap
         )
 
     with stage("tissues", "grouping classes into tissues and choosing their look"):
@@ -790,15 +824,12 @@ def design_transfer_function(
             [c.id for c in classes if c.id != background],
             similarity.matrix,
         )
-        if tap is None:
-            preview = preview_bins(quantized.bins, spacing, quantized.n_bins)
-        else:
-            preview = Preview(tap.preview(), preview_spacing, quantized.n_bins)
+        preview = Preview(tap.preview(), preview_spacing, n_bins)
         kind = _detect_kind(hierarchy, clusters.labels, bin_voxels, preview, opts["modality"])
         # The tissues' look (with its visibility step) is part of the stage: the Detail slider redoes both.
         design = TransferFunctionDesign(
-            value_range=quantized.value_range,
-            n_bins=quantized.n_bins,
+            value_range=value_range,
+            n_bins=n_bins,
             labels=clusters.labels,
             classes=classes,
             options={k: (list(v) if isinstance(v, tuple) else v) for k, v in opts.items()},
@@ -818,6 +849,7 @@ def design_transfer_function(
             similarity=similarity.matrix,
             preview=preview,
             unit_distance=preview.unit_distance,
+            robust_range=robust,
         )
         design.regroup(opts["tissues"])
     design.timings_s = timings

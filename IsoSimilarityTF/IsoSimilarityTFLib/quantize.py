@@ -6,6 +6,7 @@ from typing import Optional
 import numpy as np
 
 from .options import MAX_BINS, OPTIONS
+from .source import VolumeSource, validate_volume
 
 # Voxels of a float volume binned at a time: their float64 copy (512 KB) stays in the core's cache.
 _FLOAT_CHUNK = 1 << 16
@@ -59,11 +60,7 @@ class Quantization:
 
     def voxel_counts(self) -> np.ndarray:
         """Number of voxels per bin, shape ``(n_bins,)`` int64 (the volume's histogram)."""
-        if not isinstance(self.bins, np.ndarray):  # a dask volume: one row of chunks at a time
-            from .chunked import voxel_slabs
-
-            return sum(count_bins(slab, self.n_bins) for _, slab in voxel_slabs(self.bins, overlap=False))
-        return count_bins(self.bins, self.n_bins)
+        return sum(count_bins(slab, self.n_bins) for _, slab in VolumeSource(self.bins).slabs())
 
     def value_to_bin(self, values: np.ndarray) -> np.ndarray:
         """Bin index of each value (values outside ``value_range`` go to the first or last bin)."""
@@ -75,69 +72,48 @@ def count_bins(bins: np.ndarray, n_bins: int) -> np.ndarray:
     makes a 64-bit copy of what it counts: never of the whole array)."""
     flat = np.ascontiguousarray(bins).reshape(-1)
     if flat.dtype != np.uint8:
-        return _chunked_bincount(flat, n_bins)
+        return chunked_bincount(flat, n_bins)
     # Two uint8 voxels read as one uint16 index: half as many to count. Each pair counts once for each of its
     # two bins, whichever byte order the machine has.
-    pairs = _chunked_bincount(flat[: flat.size // 2 * 2].view(np.uint16), 1 << 16).reshape(256, 256)
+    pairs = chunked_bincount(flat[: flat.size // 2 * 2].view(np.uint16), 1 << 16).reshape(256, 256)
     counts = pairs.sum(axis=0) + pairs.sum(axis=1)
     counts[flat[-1]] += flat.size % 2
     return counts[:n_bins]
 
 
-def _chunked_bincount(flat: np.ndarray, length: int) -> np.ndarray:
-    """``np.bincount`` of a 1-D integer array, ``length`` entries, counted chunk by chunk."""
+def chunked_bincount(flat: np.ndarray, length: int, chunk: int = _COUNT_CHUNK) -> np.ndarray:
+    """``np.bincount`` of a 1-D integer array, ``length`` entries, counted ``chunk`` values at a time."""
     counts = np.zeros(length, dtype=np.int64)
-    for start in range(0, flat.size, _COUNT_CHUNK):
-        counts += np.bincount(flat[start : start + _COUNT_CHUNK], minlength=length)
+    for start in range(0, flat.size, chunk):
+        counts += np.bincount(flat[start : start + chunk], minlength=length)
     return counts
-
-
-def validate_volume(values: np.ndarray) -> np.ndarray:
-    """Return ``values`` as an array if it is a 3-D real scalar volume, else raise ``ValueError`` saying why.
-
-    A masked array is refused rather than silently unmasked: the method works on whole 2x2x2 cells, and what a cell
-    with masked corners means is the caller's choice (fill them, e.g. ``values.filled(values.min())``, or crop).
-    """
-    if isinstance(values, np.ma.MaskedArray):
-        raise ValueError(
-            "masked arrays are not supported (the mask would be ignored): fill the masked voxels, e.g. "
-            "values.filled(values.min()), or crop the volume"
-        )
-    values = np.asarray(values)
-    numeric = np.issubdtype(values.dtype, np.integer) or np.issubdtype(values.dtype, np.floating)
-    if values.dtype == bool or not numeric:
-        raise ValueError(f"expected a scalar volume of integers or floats; got dtype {values.dtype}")
-    if values.ndim == 4 and values.shape[-1] in (2, 3, 4):
-        raise ValueError(
-            f"expected a scalar volume; got {values.shape[-1]} components per voxel (shape {values.shape}): "
-            "convert vector/RGB volumes to a scalar volume first"
-        )
-    if values.ndim != 3:
-        raise ValueError(f"expected a 3-D scalar volume; got a {values.ndim}-D array of shape {values.shape}")
-    if min(values.shape) < 2:
-        raise ValueError(
-            f"expected at least 2 voxels along every axis (a unit cell is 2x2x2 voxels); got shape {values.shape}"
-        )
-    return values
 
 
 def _finite_range(values: np.ndarray, n_bins: int) -> tuple[float, float]:
     if np.issubdtype(values.dtype, np.floating):
         finite = np.isfinite(values)
         if not finite.all():
-            n_bad = int(values.size - np.count_nonzero(finite))
-            raise ValueError(f"the volume has {n_bad} NaN or infinite voxels; replace or mask them first")
+            raise ValueError(nonfinite_message(int(values.size - np.count_nonzero(finite))))
         return float(values.min()), float(values.max())
     low, high = int(values.min()), int(values.max())  # exact, whatever the magnitude
+    check_integer_span(low, high, n_bins)
+    return float(low), float(high)
+
+
+def nonfinite_message(count: int) -> str:
+    return f"the volume has {count} NaN or infinite voxels; replace or mask them first"
+
+
+def check_integer_span(low: int, high: int, n_bins: int) -> None:
+    """Refuse integers whose bins would be finer than float64 resolves at their magnitude: e.g. int64 values near
+    2^62 would all fall in one bin (the bins and the transfer function are in float64 volume units), and the run
+    would "succeed" with one class."""
     step = float(np.spacing(float(max(abs(low), abs(high)))))
     if high > low and (high - low) / n_bins < step:
-        # Bins (and the transfer function, in float64 volume units) finer than float64 resolves at this magnitude:
-        # e.g. int64 values near 2^62 would all fall in one bin, and the run would "succeed" with one class.
         raise ValueError(
             f"the volume's integers span {high - low} around {float(high):.4g}, where float64 steps by {step:g}: "
             f"too fine for {n_bins} bins; subtract an offset first (e.g. values - values.min())"
         )
-    return float(low), float(high)
 
 
 def bins_dtype(n_bins: int) -> np.dtype:

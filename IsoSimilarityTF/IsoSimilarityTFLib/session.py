@@ -13,7 +13,6 @@ from . import mrml
 from .cells import octree_levels
 from .design import TransferFunctionDesign, design_transfer_function
 from .options import check_options
-from .value_range import with_robust_range
 from .worker import DesignProcess
 
 # Similarity matrices kept for volumes designed in this session (4096 bins: 128 MB each).
@@ -25,6 +24,8 @@ LEVELS = (TISSUE, CLASS)
 
 #: The "Detail" setting (the parameter node's ``tissues``) that stands for the automatic number of tissues.
 AUTO_DETAIL = 0
+#: How a user of the logic sets the value range, in the note on what the default range left out.
+RANGE_OVERRIDE = "value_range=(low, high) in IsoSimilarityTFLib.design_transfer_function"
 
 
 def volume_values(volume_node):
@@ -263,18 +264,16 @@ class DesignSession:
         if detail is not None:
             regroup_design(design, detail)
         self.apply(volume_node, design)
+        self.range_warning = design.range_warning(RANGE_OVERRIDE)
         return design
 
     def _prepared(self, volume_node, options: Optional[dict]) -> tuple:
         """What :meth:`run` and :meth:`start` design: the volume's values and spacing, the engine's options (octree
-        levels that fit, the command line's default value range: :func:`.value_range.with_robust_range`, CT padding
-        and outlier voxels left out of the bins unless a range is given, what it left out kept in
-        :attr:`range_warning`) and the Detail count to regroup to afterwards (or None)."""
+        levels that fit) and the Detail count to regroup to afterwards (or None). The engine leaves CT padding and
+        outlier voxels out of the bins unless a range is given, as the command line does; :attr:`range_warning` says
+        what it left out."""
         values, spacing = volume_values(volume_node)
         options, _ = fit_levels(values.shape, options or {})
-        options, self.range_warning = with_robust_range(
-            values, options, "value_range=(low, high) in IsoSimilarityTFLib.design_transfer_function"
-        )
         options, detail = _engine_grouping(options)
         return values, spacing, options, detail
 
@@ -304,6 +303,7 @@ class DesignSession:
         if getattr(job, "detail", None) is not None:
             regroup_design(design, job.detail)
         self.apply(volume_node, design)
+        self.range_warning = design.range_warning(RANGE_OVERRIDE)
         return design
 
     def apply(self, volume_node, design: TransferFunctionDesign):

@@ -7,16 +7,18 @@ joint histogram of (hyper-cell min, hyper-cell max): for ``i <= j``, an inclusiv
 
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, replace
+from functools import partial
 from itertools import islice
 from typing import Callable, Optional
 
 import numpy as np
 
 from .cells import GATHERED_CELLS, OctreeBuilder, Shape3, complete_rows, octree_levels, unit_cell_slabs
-from .chunked import SlabTap, is_dask_array, voxel_slabs
 from .memory import check_memory
 from .options import CROSSINGS, NORMALIZATIONS
-from .quantize import checked_n_bins
+from .quantize import bins_dtype, checked_n_bins
+from .source import Slab, VolumeSource
+from .taps import SlabTap
 
 # Unit cells per slab, and (min, max) pairs counted per np.bincount call: bincount first converts its input to a
 # 64-bit index, which must stay in the core's cache (2 MB of 256K cells).
@@ -158,18 +160,18 @@ def level_weights(n_levels: int) -> np.ndarray:
     return h / h.sum()
 
 
-def _check_bins(bins: np.ndarray, n_bins: int) -> np.ndarray:
-    if not is_dask_array(bins):
-        bins = np.asarray(bins)
-    if bins.ndim != 3 or min(bins.shape) < 2:
-        raise ValueError(f"bins must be a 3-D array with at least 2 voxels per axis; got shape {bins.shape}")
+def _bins_source(bins, n_bins: int) -> VolumeSource:
+    """The bins as a source, checked: their shape and type now, their values as each slab is read."""
+    if not isinstance(bins, VolumeSource):
+        shape = np.shape(bins)
+        if len(shape) != 3 or min(shape) < 2:
+            raise ValueError(f"bins must be a 3-D array with at least 2 voxels per axis; got shape {shape}")
+        bins = VolumeSource(bins)
     if not np.issubdtype(bins.dtype, np.integer):
         raise ValueError(f"bins must hold integers (use quantize() first); got dtype {bins.dtype}")
-    n_bins = checked_n_bins(n_bins)
+    checked_n_bins(n_bins)
     # A clear error, not numpy's MemoryError (or the OOM killer) mid-way.
-    check_memory(bins.shape, int(n_bins), streamed=is_dask_array(bins))
-    if not is_dask_array(bins):  # a dask volume's slabs are checked as they are read: no pass of its own
-        _check_bin_bounds(bins, n_bins)
+    check_memory(bins.shape, int(n_bins), streamed=bins.lazy)
     return bins
 
 
@@ -183,11 +185,6 @@ def _check_bin_bounds(bins: np.ndarray, n_bins: int) -> None:
     high = int(bins.max()) if limits.max >= n_bins else 0
     if low < 0 or high >= n_bins:
         raise ValueError(f"bins must lie in [0, {n_bins}); found {low if low < 0 else high}")
-
-
-def _index_dtype(n_bins: int) -> np.dtype:
-    """The smallest unsigned integer type of the bins the engine works on."""
-    return np.dtype(np.uint8 if n_bins <= 256 else np.uint16)
 
 
 def _counted_row_by_row(cells: int, n_bins: int) -> bool:
@@ -254,7 +251,7 @@ class CellCounts:
 @dataclass(frozen=True)
 class _CountSpec:
     """What every part of one similarity pass counts: the volume's shape (voxels), bins, levels and bins' dtype, and
-    whether its tap gathers voxel counts (and with which preview steps, see :class:`~.chunked.SlabTap`)."""
+    whether its tap gathers voxel counts (with which preview steps and kept planes, see :class:`~.taps.SlabTap`)."""
 
     shape: Shape3
     n_bins: int
@@ -262,6 +259,7 @@ class _CountSpec:
     dtype: np.dtype
     tap: bool
     preview_steps: tuple[int, int, int] = (0, 0, 0)
+    kept_planes: tuple[int, ...] = ()
 
     @property
     def grid(self) -> Shape3:
@@ -286,7 +284,7 @@ def count_cells(
             each of shape ``(planes, n1, n2)`` (consecutive slabs may share a plane: each unit cell is counted once,
             from the slab holding both of its planes).
         spec: what is counted.
-        progress: called as ``progress(fraction, message)`` with the fraction of the whole pass done (this part's
+        progress: called as ``progress(fraction)`` with the share of the volume's unit cells counted (this part's
             unit cells), at least every ``_PROGRESS_CELLS`` unit cells.
     """
     grid, n_bins = spec.grid, spec.n_bins
@@ -312,8 +310,8 @@ def count_cells(
             builder_levels[level] = rows
         else:
             unit_rows = rows
-    tap = SlabTap(spec.shape, n_bins, first, spec.preview_steps) if spec.tap else None
-    total = int(np.prod(grid)) + builder.n_cells
+    tap = SlabTap(spec.shape, n_bins, first, spec.preview_steps, spec.kept_planes) if spec.tap else None
+    total = int(np.prod(grid))
     reported = 0
     first_plane = voxels = None
     for start, voxels in slabs:
@@ -328,7 +326,7 @@ def count_cells(
             builder.add_slab(plane, mins, maxs)
             done = (plane + len(mins)) * grid[1] * grid[2]
             if progress is not None and done - reported >= _PROGRESS_CELLS:
-                progress(done / total, "similarity: unit cells")
+                progress(done / total)
                 reported = done
     builder.finish()
     counts = CellCounts(first, stop, {}, {}, partial, (first_plane, voxels[-1].copy()), tap)
@@ -377,117 +375,19 @@ def merge_counts(low: CellCounts, high: CellCounts, spec: _CountSpec) -> CellCou
     return merged
 
 
-# Parts per worker of a dask volume's similarity pass: one (each part returns tables of n_bins ** 2 int64; on
-# 2048 x 1024 x 1024 voxels and 2 workers, 2 parts per worker took 9.0 s against 8.0-10.3 s for one).
-_PARTS_PER_WORKER = 1
-
-
-def _similarity_workers() -> int:
-    """How many parts of a dask volume's similarity pass run at once: the worker threads of the dask.distributed
-    client in use, the workers of dask's ``"processes"`` scheduler when it is the one chosen, else 1.
-
-    One part by default: counted in this process while dask's threads read and quantize the next row of chunks, it
-    already keeps about 1.4 of 2 cores busy. A pool of 2 processes gained nothing on a 1024^3 volume (5.2-5.3 s against
-    5.0-5.3 s, the pool's start included) and 1.2 times on 2048 x 1024 x 1024 (8.9 s against 10.3-11.7 s), but it
-    would double the memory and start its processes by re-running the caller's main module (a script without a
-    ``__main__`` guard would run again in each).
-    """
-    import os
-
-    import dask
-
-    scheduler = dask.config.get("scheduler", None)
-    if scheduler in ("dask.distributed", "distributed"):
-        from distributed import default_client
-
-        return max(1, sum(default_client().nthreads().values()))
-    if scheduler in ("processes", "multiprocessing"):
-        return int(dask.config.get("num_workers", None) or os.cpu_count() or 1)
-    return 1
-
-
-class _Unread:
-    """A dask array handed to a task as it is, not computed first (dask computes the collections among a task's
-    arguments): the task reads its chunks itself."""
-
-    def __init__(self, array) -> None:
-        self.array = array
-
-
-def _checked_slabs(volume, spec: _CountSpec, offset: int = 0) -> Iterator[tuple[int, np.ndarray]]:
-    """The slabs of :func:`~.chunked.voxel_slabs` of a dask volume of bins starting at plane ``offset``, each checked
-    against ``n_bins`` and cast to the engine's dtype."""
-    for start, voxels in voxel_slabs(volume):
+def _checked_slabs(slabs: Iterable[Slab], spec: _CountSpec) -> Iterator[Slab]:
+    """Slabs of bins, each checked against ``n_bins`` (one scan per slab, only for bounds its dtype does not already
+    guarantee) and cast to the engine's dtype."""
+    for first, voxels in slabs:
         _check_bin_bounds(voxels, spec.n_bins)
-        yield offset + start, voxels.astype(spec.dtype, copy=False)
+        yield first, voxels.astype(spec.dtype, copy=False)
 
 
-def _reuse_freed_memory() -> None:
-    """Let glibc reuse the memory the engine frees rather than return it at once (Linux; elsewhere nothing).
-
-    dask.distributed starts its workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which also stops glibc from raising its
-    mmap threshold: every buffer of more than 128 kB (``np.bincount``'s 2 MB index, the reduced slabs) is then mapped
-    and page-faulted afresh, and the pass took 3 times as long (sys time 21 s of 34 s on a 1024^3 volume). Buffers up
-    to 32 MB come from the heap again, and 64 MB of freed heap is kept.
-    """
-    import ctypes
-    import ctypes.util
-
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c"))
-        libc.mallopt(-3, 32 << 20)  # M_MMAP_THRESHOLD
-        libc.mallopt(-1, 64 << 20)  # M_TRIM_THRESHOLD
-    except (OSError, AttributeError, TypeError):  # no C library found, or not glibc
-        pass
-
-
-def _count_part(part: _Unread, offset: int, spec: _CountSpec) -> CellCounts:
-    """A dask task: the counts of the voxel planes ``offset ..`` of ``part``, read here."""
-    import dask
-
-    _reuse_freed_memory()
-    # Read here (voxel_slabs' thread reads the next row while this one is counted): from inside a cluster's task,
-    # dask's default scheduler would be the cluster, which would read the chunks elsewhere and send them here.
-    with dask.config.set(scheduler="sync"):
-        return count_cells(_checked_slabs(part.array, spec, offset), spec, offset, offset + len(part.array) - 1)
-
-
-def _chunked_counts(bins, spec: _CountSpec, progress: Optional[ProgressCallback]) -> CellCounts:
-    """:func:`count_cells` of a dask volume: in parts along axis 0 (whole rows of chunks) counted in parallel by dask's
-    scheduler, each reading its own chunks, and merged pairwise as they finish (a tree: few parts are held at once)."""
-    import dask
-    from dask.base import tokenize
-    from dask.callbacks import Callback
-
-    planes = np.cumsum((0, *bins.chunks[0]))
-    workers = _similarity_workers()
-    n_parts = min(len(planes) - 1, workers * _PARTS_PER_WORKER)
-    if workers == 1 or n_parts == 1:  # one part, read by the scheduler as this process counts it
-        return count_cells(_checked_slabs(bins, spec), spec, 0, spec.grid[0], progress)
-    bounds = planes[np.unique(np.linspace(0, len(planes) - 1, n_parts + 1).round().astype(int))]
-    token = tokenize(bins, spec)
-    cells = {}
-    parts = []
-    for k, (start, stop) in enumerate(zip(bounds[:-1], bounds[1:])):
-        key = f"isosimtf-part-{k}-{token}"
-        cells[key] = int(stop - 1 - start) * spec.grid[1] * spec.grid[2]
-        parts.append(dask.delayed(_count_part)(_Unread(bins[start:stop]), int(start), spec, dask_key_name=key))
-    while len(parts) > 1:  # adjacent parts merged pairwise, the last one of an odd count carried up
-        merged = [dask.delayed(merge_counts)(low, high, spec) for low, high in zip(parts[::2], parts[1::2])]
-        parts = merged + parts[len(merged) * 2 :]
-    total = sum(_level_cells(spec.grid))
-    done = 0
-
-    def posttask(key, result, dsk, state, worker_id) -> None:  # local schedulers only: a cluster reports at the end
-        nonlocal done
-        if progress is not None and key in cells:
-            done += cells[key]
-            progress(done / total, "similarity: unit cells")
-
-    # chunksize 1: dask's process pool would otherwise send the parts to one process in a batch.
-    with Callback(posttask=posttask), dask.config.set(chunksize=1):
-        (counts,) = dask.compute(parts[0])
-    return counts
+def _count_part(
+    slabs: Iterable[Slab], first: int, stop: int, progress: Optional[Callable[[float], None]], *, spec: _CountSpec
+) -> CellCounts:
+    """:func:`count_cells` of a part of the volume (see :meth:`.source.VolumeSource.map_reduce`)."""
+    return count_cells(_checked_slabs(slabs, spec), spec, first, stop, progress)
 
 
 def _level_cells(grid: Shape3) -> list[int]:
@@ -521,7 +421,7 @@ def _level_tables(
 
 
 def interval_histograms(
-    bins: np.ndarray,
+    bins,
     n_bins: int,
     levels: int,
     progress: Optional[ProgressCallback] = None,
@@ -536,33 +436,40 @@ def interval_histograms(
 
     On a dask.distributed cluster (or dask's ``"processes"`` scheduler), a dask volume is counted in parts along axis 0
     (whole rows of chunks, one part per worker) that run on the workers, each reading its own chunks, and are merged
-    there (:func:`merge_counts`): the same integer counts. Otherwise it is one part, counted in this process.
+    there (:func:`merge_counts`): the same integer counts (see :meth:`.source.VolumeSource.map_reduce`).
 
     Args:
-        bins: 3-D uint8 or uint16 array (numpy), or integer dask array (checked and cast slab by slab), values in
-            ``[0, n_bins)``.
+        bins: a :class:`~.source.VolumeSource` of bins, or a 3-D integer array (numpy or dask), values in
+            ``[0, n_bins)`` (checked and cast slab by slab).
         levels: how many of the coarsest levels to count.
         progress: called as ``progress(fraction, message)`` during the pass and after each level; raising from it
             aborts.
-        tap: a dask volume's voxel counts and background-contact planes are gathered into it during the pass.
+        tap: gathers the voxel counts, the planes it keeps and the preview during the pass.
 
     Yields:
         ``(level, size, histogram)`` finest level first: level number (1 = coarsest), hyper-cell size in unit cells,
         ``(n_bins, n_bins)`` int64 table.
     """
-    dtype = bins.dtype if bins.dtype in (np.uint8, np.uint16) else _index_dtype(n_bins)
+    bins = _bins_source(bins, n_bins)
+    dtype = bins.dtype if bins.dtype in (np.uint8, np.uint16) else bins_dtype(n_bins)
     spec = _CountSpec(
-        tuple(int(n) for n in bins.shape),
+        bins.shape,
         int(n_bins),
         int(levels),
         np.dtype(dtype),
         tap is not None,
         tap.preview_steps if tap is not None else (0, 0, 0),
+        tap.kept_planes if tap is not None else (),
     )
-    if is_dask_array(bins):
-        counts = _chunked_counts(bins, spec, progress)
-    else:
-        counts = count_cells([(0, bins)], spec, 0, spec.grid[0], progress)
+    cells = _level_cells(spec.grid)
+    unit_share = cells[-1] / sum(cells)
+
+    def report(fraction: float) -> None:
+        progress(fraction * unit_share, "similarity: unit cells")
+
+    counts = bins.map_reduce(
+        partial(_count_part, spec=spec), partial(merge_counts, spec=spec), report if progress is not None else None
+    )
     if tap is not None:
         tap.merge(counts.tap)
     yield from _level_tables(counts, spec, progress)
@@ -601,7 +508,7 @@ def isovalue_similarity(
     See :func:`similarity_matrix` for the arguments, and :func:`interval_histograms` for ``tap``.
     """
     _check_options(crossing, normalization)
-    bins = _check_bins(bins, n_bins)
+    bins = _bins_source(bins, n_bins)
     grid = tuple(n - 1 for n in bins.shape)
     all_levels = len(octree_levels(grid))
     if levels is None:
@@ -610,8 +517,6 @@ def isovalue_similarity(
         raise ValueError(f"levels must be an integer from 1 to {all_levels} for this volume; got {levels!r}")
     levels = int(levels)
 
-    if bins.dtype not in (np.uint8, np.uint16) and not is_dask_array(bins):  # a dask volume's slabs are cast as read
-        bins = bins.astype(_index_dtype(n_bins))
     weights = level_weights(levels)
     # Only the upper triangles (i <= j) are summed; the matrix is mirrored at the end. Ma & Entezari's A(i, j) and
     # A(j, i) = O(i, j) / n(i) are summed apart ("by column" and "by row"), then merged by their element-wise minimum.

@@ -3,9 +3,9 @@
 Quantizing over a volume's minimum and maximum lets a few voxels decide every bin: one voxel at -1e30 squeezes the
 whole head into the first bin (and the transfer function shows nothing), and CT padding outside the field of view
 (-3024, -2048, -32768: a large constant block far below air) halves the bins left for tissue. This module finds
-both and leaves them out of the default range; their voxels still count, in the first or last bin. The command line
-and the Slicer module call the same rule (:func:`robust_value_range`), and an explicit range (``--range``,
-``value_range``) overrides it.
+both and leaves them out of the default range; their voxels still count, in the first or last bin.
+:func:`~.design.design_transfer_function` applies this rule (:func:`robust_value_range`) whoever calls it (Python,
+the command line, the Slicer module), and an explicit range (``value_range``, ``--range``) overrides it.
 
 - **Padding**: the volume's lowest (or highest) value holds at least :data:`PADDING_FRACTION` of the voxels and lies
   more than :data:`PADDING_GAP` of the value span away from the next value present, and the other values are a
@@ -14,8 +14,9 @@ and the Slicer module call the same rule (:func:`robust_value_range`), and an ex
 - **Outliers**: values more than :data:`OUTLIER_SPREADS` times the spread of the central values (0.1th to 99.9th
   percentile, padding left out) beyond them. CT metal at 3071 beside bone at 1500 is not an outlier.
 
-Decisions come from a strided sample (every s-th voxel, at most ``sample_voxels``); the range's ends and the counts
-of voxels left out are exact, from full passes.
+Decisions come from the survey's strided sample (every s-th voxel, at most ``SAMPLE_VOXELS``, see :mod:`.survey`);
+the range's ends and the counts of voxels left out are exact: from the survey's value histogram for integers of at
+most 16 bits, else from one more pass, only when something is left out.
 """
 
 from dataclasses import dataclass
@@ -23,8 +24,8 @@ from typing import Any, Optional
 
 import numpy as np
 
-from .chunked import is_dask_array
-from .quantize import MAX_VALUE_MAGNITUDE
+from .source import VolumeSource
+from .survey import SAMPLE_VOXELS, Survey, beyond_float_sums, survey_volume
 
 #: Least share of the voxels at one extreme value for it to be padding.
 PADDING_FRACTION = 0.005
@@ -34,8 +35,6 @@ PADDING_GAP = 0.15
 MIN_DISTINCT = 32
 #: Spreads of the central values (0.1th to 99.9th percentile) beyond which a value is an outlier.
 OUTLIER_SPREADS = 2.0
-#: Voxels of the sample the decisions are taken on.
-SAMPLE_VOXELS = 1 << 21
 
 
 @dataclass(frozen=True)
@@ -82,47 +81,62 @@ class RobustRange:
         )
 
 
-def _sample(values: Any, sample_voxels: int) -> np.ndarray:
-    """Every s-th voxel along each axis (at most ``sample_voxels``), in memory, as a flat float64 array."""
-    step = max(1, int(np.ceil((float(np.prod(values.shape, dtype=np.float64)) / sample_voxels) ** (1 / 3))))
-    sample = values[::step, ::step, ::step]
-    sample = sample.compute() if is_dask_array(sample) else sample
-    return np.asarray(sample, dtype=np.float64).reshape(-1)
+@dataclass(frozen=True)
+class _Counts:
+    """Exact facts about the voxels the rules leave out: the least and greatest value strictly between ``above``
+    and ``below``, how many voxels lie at or below ``above`` and at or above ``below``, and at each padding value."""
+
+    low: float
+    high: float
+    below: int
+    above: int
+    padding: tuple[int, ...]
 
 
-def _min_max(values: Any, above: float = -np.inf, below: float = np.inf) -> tuple[float, float]:
-    """Exact minimum and maximum of the voxels strictly between ``above`` and ``below`` (one pass, in the volume's
-    own dtype: a float64 copy of a large volume would cost more than the pass)."""
-    limits = np.iinfo(values.dtype) if np.issubdtype(values.dtype, np.integer) else np.finfo(values.dtype)
-    if is_dask_array(values):
-        import dask.array as da
-
-        if above == -np.inf and below == np.inf:
-            low, high = da.compute(values.min(), values.max())
-        else:
-            inside = (values > above) & (values < below)
-            low, high = da.compute(
-                da.where(inside, values, limits.max).min(), da.where(inside, values, limits.min).max()
-            )
-        return float(low), float(high)
-    if above == -np.inf and below == np.inf:
-        return float(np.min(values)), float(np.max(values))
-    inside = (values > above) & (values < below)
-    low = np.min(values, where=inside, initial=limits.max)
-    return float(low), float(np.max(values, where=inside, initial=limits.min))
+def _counts_from_histogram(survey: Survey, above: float, below: float, padding: list) -> _Counts:
+    values, counts = survey.values(), survey.histogram
+    present = counts > 0
+    inside = present & (values > above) & (values < below)
+    kept = values[inside]
+    return _Counts(
+        float(kept.min()) if kept.size else np.inf,  # nothing kept: no range (as the pass finds)
+        float(kept.max()) if kept.size else -np.inf,
+        int(counts[values <= above].sum()),
+        int(counts[values >= below].sum()),
+        tuple(int(counts[values == p].sum()) for p in padding),
+    )
 
 
-def _count(values: Any, mask_of: Any) -> int:
-    count = np.count_nonzero(mask_of(values))
-    return int(count.compute() if is_dask_array(values) else count)
+def _counts_from_pass(source: VolumeSource, above: float, below: float, padding: list) -> _Counts:
+    """:class:`_Counts` in one pass over the volume (in its own dtype: a float64 copy would cost more than the
+    pass)."""
+    dtype = source.dtype
+    limits = np.iinfo(dtype) if np.issubdtype(dtype, np.integer) else np.finfo(dtype)
+    low, high = limits.max, limits.min
+    n_below = n_above = 0
+    at_padding = [0] * len(padding)
+    for _, slab in source.slabs():
+        at_or_below, at_or_above = slab <= above, slab >= below
+        inside = ~(at_or_below | at_or_above)
+        low = min(low, np.min(slab, where=inside, initial=limits.max))
+        high = max(high, np.max(slab, where=inside, initial=limits.min))
+        n_below += int(np.count_nonzero(at_or_below))
+        n_above += int(np.count_nonzero(at_or_above))
+        for k, value in enumerate(padding):
+            at_padding[k] += int(np.count_nonzero(slab == value))
+    return _Counts(float(low), float(high), n_below, n_above, tuple(at_padding))
 
 
-def robust_value_range(values: Any, *, sample_voxels: int = SAMPLE_VOXELS) -> RobustRange:
+def robust_value_range(
+    values: Any, *, survey: Optional[Survey] = None, sample_voxels: int = SAMPLE_VOXELS
+) -> RobustRange:
     """The default value range of a 3-D volume: its minimum and maximum, without padding and outliers.
 
     Args:
-        values: the volume, shape ``(K, J, I)`` (any axis order), integers or floats; a numpy or dask array.
-        sample_voxels: voxels of the sample the decisions are taken on.
+        values: the volume, shape ``(K, J, I)`` (any axis order), integers or floats: a numpy or dask array, or a
+            :class:`~.source.VolumeSource`.
+        survey: the volume's :func:`~.survey.survey_volume`, when already made (else it is made here).
+        sample_voxels: voxels of the sample the decisions are taken on (when the survey is made here).
 
     Returns:
         A :class:`RobustRange`; its ``value_range`` is what ``quantize(values, value_range=...)`` should get, and
@@ -130,15 +144,14 @@ def robust_value_range(values: Any, *, sample_voxels: int = SAMPLE_VOXELS) -> Ro
         infinite values, or values beyond ``quantize.MAX_VALUE_MAGNITUDE`` (whose spreads overflow), is returned
         with its data range unchanged (the design refuses it, saying so).
     """
-    if np.issubdtype(values.dtype, np.floating):
-        if _count(values, lambda v: ~np.isfinite(v)):
-            low, high = _min_max(values)
-            return RobustRange((low, high), (low, high))
-    low, high = _min_max(values)
-    data_range = (low, high)
-    if max(-low, high) > MAX_VALUE_MAGNITUDE:
+    source = values if isinstance(values, VolumeSource) else VolumeSource(values)
+    if survey is None:
+        survey = survey_volume(source, sample_voxels)
+    low, high = survey.low, survey.high
+    data_range = (float(low), float(high))
+    if survey.nonfinite or beyond_float_sums(survey):
         return RobustRange(data_range, data_range)
-    sample = np.sort(_sample(values, sample_voxels))
+    sample = np.sort(survey.sample)
     if high <= low or sample.size < 2:
         return RobustRange(data_range, data_range)
 
@@ -175,25 +188,16 @@ def robust_value_range(values: Any, *, sample_voxels: int = SAMPLE_VOXELS) -> Ro
     below = min([cut_high, *[p for p in padding if p == high]], default=np.inf)
     if above < low and below > high:
         return RobustRange(data_range, data_range)
-    value_range = _min_max(values, above if above >= low else -np.inf, below if below <= high else np.inf)
+    above = above if above >= low else -np.inf
+    below = below if below <= high else np.inf
+    if survey.histogram is not None:
+        counts = _counts_from_histogram(survey, above, below, padding)
+    else:
+        counts = _counts_from_pass(source, above, below, padding)
+    value_range = (counts.low, counts.high)
     if not value_range[0] < value_range[1]:
         return RobustRange(data_range, data_range)
-    counted = tuple((float(p), _count(values, lambda v, p=p: v == p)) for p in padding)
-    outliers_low = _count(values, lambda v: v < value_range[0]) - sum(c for p, c in counted if p == low)
-    outliers_high = _count(values, lambda v: v > value_range[1]) - sum(c for p, c in counted if p == high)
+    counted = tuple((float(p), c) for p, c in zip(padding, counts.padding))
+    outliers_low = counts.below - sum(c for p, c in counted if p == low)
+    outliers_high = counts.above - sum(c for p, c in counted if p == high)
     return RobustRange(value_range, data_range, counted, outliers_low, outliers_high)
-
-
-def with_robust_range(values: Any, options: dict, override: str) -> tuple[dict, Optional[str]]:
-    """``options`` with the robust default range (:func:`robust_value_range`) unless they give a ``value_range``,
-    and the one line saying what it leaves out (None when it leaves nothing out or a range is given).
-
-    Args:
-        override: how the caller's user sets the range (see :meth:`RobustRange.warning`).
-    """
-    if options.get("value_range") is not None:
-        return options, None
-    robust = robust_value_range(values)
-    if not robust.excludes:
-        return options, None
-    return {**options, "value_range": robust.value_range}, robust.warning(override)

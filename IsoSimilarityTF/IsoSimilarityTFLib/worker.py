@@ -36,6 +36,7 @@ parent is gone and whose child no longer runs; only real directories (never a sy
 ``IsoSimilarityTF-*`` that hold this module's request file, and on POSIX belong to this user, are touched.
 """
 
+import dataclasses
 import json
 import os
 import shutil
@@ -53,12 +54,14 @@ import numpy as np
 
 from . import errors
 from .design import TransferFunctionDesign
+from .value_range import RobustRange
 
 REQUEST_FILE = "request.json"
 VALUES_FILE = "values.npy"
 PROGRESS_FILE = "progress.jsonl"
 DESIGN_FILE = "design.json"
 SIMILARITY_FILE = "similarity.npy"
+RANGE_FILE = "robust_range.json"
 ERROR_FILE = "error.json"
 LOG_FILE = "log.txt"
 CANCEL_FILE = "cancel"
@@ -243,6 +246,17 @@ class DesignProcess:
         with open(design_path, encoding="utf-8") as file:
             design = TransferFunctionDesign.from_json(file.read())
         design.similarity = np.load(os.path.join(self.folder, SIMILARITY_FILE))
+        range_path = os.path.join(self.folder, RANGE_FILE)
+        if os.path.exists(range_path):
+            with open(range_path, encoding="utf-8") as file:
+                left_out = json.load(file)
+            design.robust_range = RobustRange(
+                tuple(left_out["value_range"]),
+                tuple(left_out["data_range"]),
+                tuple(tuple(padding) for padding in left_out["padding"]),
+                int(left_out["outliers_low"]),
+                int(left_out["outliers_high"]),
+            )
         return design
 
     def log_tail(self, characters: int = 2000) -> str:
@@ -452,6 +466,8 @@ def main(argv=None) -> int:
         except (errors.IsoSimilarityTFError, ValueError, MemoryError, TypeError) as error:
             _write_json(os.path.join(folder, ERROR_FILE), {"type": type(error).__name__, "message": str(error)})
             return 1
+    if design.robust_range is not None:  # not part of the design's text: the parent's note on the range
+        _write_json(os.path.join(folder, RANGE_FILE), dataclasses.asdict(design.robust_range))
     np.save(os.path.join(folder, SIMILARITY_FILE + ".part.npy"), design.similarity)
     os.replace(os.path.join(folder, SIMILARITY_FILE + ".part.npy"), os.path.join(folder, SIMILARITY_FILE))
     with open(os.path.join(folder, DESIGN_FILE + ".part"), "w", encoding="utf-8") as file:
