@@ -112,3 +112,25 @@ def test_the_estimate_of_a_trillion_voxels_is_in_hours():
 
     (warning,) = _input_warnings({"shape": [10_000, 10_000, 10_000], "spacing": [1.0, 1.0, 1.0]}, 256)
     assert "1e+12 voxels" in warning and "3.3 hours" in warning  # 12 ns per voxel
+
+
+def test_a_warning_ends_the_progress_line_it_interrupts(tmp_path):
+    """On a terminal the stage's progress line stays open; a warning starts on a line of its own."""
+    import io
+
+    from isosimtf.console import ProgressPrinter
+    from isosimtf.run import run
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    stream = Terminal()
+    seen = []
+    values = np.random.default_rng(0).normal(size=(12, 12, 12)).astype(np.float32)
+    values[:, :, :2] = -3024.0  # padding: the range's warning comes after the design's progress
+    np.save(tmp_path / "v.npy", values)
+    progress = ProgressPrinter(4, stream=stream)
+    run(tmp_path / "v.npy", tmp_path / "out", options={"n_bins": 16}, render=False, progress=progress,
+        warn=lambda message: seen.append(stream.getvalue()))  # fmt: skip
+    assert seen and all(text.endswith("\n") for text in seen)

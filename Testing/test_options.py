@@ -2,6 +2,7 @@
 
 import math
 
+import numpy as np
 import pytest
 
 from IsoSimilarityTFLib import OPTIONS, OptionError, design_transfer_function
@@ -89,3 +90,17 @@ def test_the_options_table_is_a_leaf_whose_words_every_module_uses():
     assert look.GRADIENT_OPACITY is options.GRADIENT_OPACITY and memory.MAX_BINS is options.MAX_BINS
     assert similarity.CROSSINGS is options.CROSSINGS and similarity.NORMALIZATIONS is options.NORMALIZATIONS
     assert options.OPTIONS["crossing"].choices is options.CROSSINGS
+
+
+def test_the_checks_across_options_are_the_engines_and_the_command_line_words_them_with_its_flags():
+    from IsoSimilarityTFLib.options import check_together
+
+    values = np.random.default_rng(0).normal(size=(8, 8, 8))
+    with pytest.raises(OptionError, match="convergence_iter 101 is more than max_iter 100"):
+        design_transfer_function(values, max_iter=100, convergence_iter=101)
+    check_options({"max_iter": 100, "convergence_iter": 100})  # equal: refused only above
+    with pytest.raises(OptionError, match="tissues 65 is more than n_bins 64"):
+        check_options({"n_bins": 64, "tissues": 65})
+    check_options({"n_bins": 64, "tissues": 64})
+    with pytest.raises(OptionError, match="--tissues 65 is more than --bins 64"):
+        check_together({"n_bins": 64, "tissues": 65}, lambda option: OPTIONS[option].flag)

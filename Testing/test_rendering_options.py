@@ -10,7 +10,7 @@ import pytest
 
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 
-from isosimtf import rendering
+from isosimtf import read_errors, rendering
 
 pytestmark = pytest.mark.skipif(
     not rendering.slicer_core_available(), reason="slicer-core (Slicer's Qt-free MRML libraries) is not installed"
@@ -95,7 +95,7 @@ def test_split_vtk_messages_drops_heads_and_object_ids():
         "1048576, falling back to maximum allowed, 16384.\n\n\n"
         "ERROR: In vtkSomething.cxx, line 9\nvtkSomething (0x1): broken\n\n"
     )
-    messages = rendering.split_vtk_messages(text)
+    messages = read_errors.split_vtk_messages(text)
     assert messages[1] == "broken"
     assert messages[0].startswith("This OpenGL implementation")
     assert rendering.lookup_table_fallbacks(messages) == [messages[0]]

@@ -39,6 +39,7 @@ import numpy as np
 from IsoSimilarityTFLib.errors import VolumeReadError
 from IsoSimilarityTFLib.memory import available_memory_bytes, design_memory_bytes
 
+from . import slicer_readers
 from .headers import RAW_HEADER_SUFFIXES, StoredVoxels, stored_voxels
 from .read_errors import cannot_read, python_warning, regular_file
 from .volume import Volume, right_handed
@@ -142,8 +143,6 @@ def raw_values(
             truncated.
     """
     if header is None:
-        from . import slicer_readers
-
         header = slicer_readers.read_header(path, (path,))
     if header.components != 1 or header.dimensions != stored.shape[::-1]:
         raise cannot_read(

@@ -8,8 +8,9 @@ import numpy as np
 
 from IsoSimilarityTFLib.errors import UsageError
 from IsoSimilarityTFLib.memory import check_memory
-from IsoSimilarityTFLib.source import is_dask_array
+from IsoSimilarityTFLib.source import is_lazy
 
+from .phantom import head_phantom
 from .volume_io import Volume, read_volume
 
 PathLike = Union[str, "os.PathLike[str]"]
@@ -46,8 +47,6 @@ def load_input(
         seed. InsufficientMemoryError: the volume would not fit in memory.
     """
     if is_phantom_input(source):
-        from .phantom import head_phantom
-
         if not MIN_PHANTOM_SIZE <= phantom_size <= MAX_PHANTOM_SIZE:
             raise UsageError(
                 f"the phantom size must be from {MIN_PHANTOM_SIZE} to {MAX_PHANTOM_SIZE} voxels; got {phantom_size}"
@@ -64,7 +63,7 @@ def input_info(source: PathLike, volume: Volume) -> dict:
     """The ``input`` entry of ``classes.json``: where the volume came from and its geometry."""
     is_phantom = is_phantom_input(source)
     values = volume.values
-    lazy = is_dask_array(values)  # its range would cost a pass over the volume: the design's own pass finds it
+    lazy = is_lazy(values)  # its range would cost a pass over the volume: the design's own pass finds it
     return {
         "path": PHANTOM_INPUT if is_phantom else str(Path(source).resolve()),
         "name": volume.name,

@@ -15,11 +15,13 @@ design of the whole volume; the scene and the segmentation, which would hold onl
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Optional
+from typing import Any, Optional
 
 import numpy as np
 
+from IsoSimilarityTFLib import __version__
 from IsoSimilarityTFLib.design import Tissue, TransferFunctionDesign
+from IsoSimilarityTFLib.mrml import apply_design, export_segmentation, update_property_node
 from IsoSimilarityTFLib.pictures import similarity_image
 
 from .console import ProgressPrinter
@@ -35,11 +37,8 @@ from .output_folder import (
     write_atomically,
 )
 from .read_errors import captured_native_output, first_message
+from .rendering import HeadlessSlicer, write_png
 from .volume import Volume
-
-if TYPE_CHECKING:  # pragma: no cover - typing only
-    from .rendering import HeadlessSlicer
-
 
 #: Side of a thumbnail in looks.png, in pixels.
 THUMBNAIL_SIZE = 160
@@ -135,8 +134,6 @@ class RunResult:
 
     def document(self) -> dict:
         """The ``classes.json`` content: the design's document plus input, tool and output information."""
-        from . import __version__
-
         document = self.design.to_dict()
         roles = self.design.look_context().roles
         document["looks"] = [look.summary(roles) for look in self.design.looks]
@@ -163,8 +160,6 @@ class RunResult:
 
 def write_data_files(result: RunResult) -> None:
     """Write similarity.npy/png, the transfer function files and classes.json into the output folder."""
-    from .rendering import write_png
-
     design, outdir = result.design, result.outdir
     writers = {
         "similarity_npy": lambda path: np.save(path, np.asarray(design.similarity, dtype=np.float64)),
@@ -184,8 +179,6 @@ def write_data_files(result: RunResult) -> None:
 
 def write_looks(result: RunResult) -> None:
     """Write ``looks/<name>.vp.json`` for every look of the gallery and ``looks.png``, their thumbnails."""
-    from .rendering import write_png
-
     design, outdir = result.design, result.outdir
     (outdir / LOOKS_FOLDER).mkdir(exist_ok=True)  # a link there was refused before any work (check_outputs)
     for look in design.looks:
@@ -237,8 +230,6 @@ def open_headless(
         backdrop: "black" or "slicer" (Slicer's blue gradient), see ``rendering.BACKDROPS``.
         ray_casting: "cpu" or "gpu", see ``rendering.RAY_CASTING``.
     """
-    from .rendering import HeadlessSlicer
-
     tile_size = max(MIN_SIZE, size // 2)
     background = (0.0, 0.0, 0.0) if backdrop == "black" else None
     return HeadlessSlicer(size=(tile_size, tile_size), rendering_method=ray_casting, background=background)
@@ -266,10 +257,6 @@ def render_outputs(
         headless: a new, empty :func:`open_headless` to draw in (the caller closes it); None: one with the defaults,
             opened and closed here.
     """
-    from IsoSimilarityTFLib.mrml import apply_design
-
-    from .rendering import write_png
-
     design, volume, outdir = result.design, result.pictured, result.outdir
     if headless is None:
         with open_headless(size) as headless:
@@ -317,8 +304,6 @@ def _tissue_grid(
     progress: Optional[ProgressPrinter],
 ) -> np.ndarray:
     """classes.png: one tile per tissue, rendered alone (solo) in the current window and camera, labelled."""
-    from IsoSimilarityTFLib.mrml import update_property_node
-
     decimals = value_decimals(design.value_range, design.n_bins)
     total = max(int(np.sum(design.bin_voxels)), 1)
     tiles, labels = [], []
@@ -346,8 +331,6 @@ def write_segmentation(result: RunResult, headless, volume_node) -> None:
 
     No Segmentations module logic is attached to the scene: ``export_segmentation`` registers the converter rules it
     needs, and detaching such a logic afterwards logs a VTK warning ("Invalid scene given")."""
-    from IsoSimilarityTFLib.mrml import export_segmentation
-
     path = result.outdir / OUTPUT_FILES["segmentation"]
     node = export_segmentation(volume_node, result.design)
     storage = headless.scene.AddNewNodeByClass("vtkMRMLSegmentationStorageNode")

@@ -28,15 +28,54 @@ _ITK_LOCATION = re.compile(r"\s*\[vtk\w+\.cxx, line \d+, [^\]]*\]\s*$")
 _TEEM_PREFIX = re.compile(r"^\[\w+\]\s*\w+:\s*")
 
 
+_VTK_MESSAGE_HEAD = re.compile(r"^(Warning|ERROR|Error|Generic Warning): In .*, line \d+\s*$")
+_VTK_OBJECT = re.compile(r"^\s*\w+ \(0x[0-9a-fA-F]+\):\s*")
+
+
+@contextlib.contextmanager
+def captured_vtk_messages() -> Iterator[list[str]]:
+    """Collect VTK's warnings and errors (``vtkWarningMacro``, ``vtkErrorMacro``) during a block, e.g. a render.
+
+    Yields a list that is filled when the block ends, one string per message (the object prefix and the
+    "In file.cxx, line N" head removed). Meanwhile nothing of it goes to stderr; afterwards VTK's output window and
+    logger are as before.
+    """
+    from vtkmodules.vtkCommonCore import vtkLogger, vtkOutputWindow, vtkStringOutputWindow
+
+    previous = vtkOutputWindow.GetInstance()
+    window = vtkStringOutputWindow()
+    vtkOutputWindow.SetInstance(window)
+    cutoff = vtkLogger.GetCurrentVerbosityCutoff()
+    vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_OFF)
+    messages: list[str] = []
+    try:
+        yield messages
+    finally:
+        vtkLogger.SetStderrVerbosity(vtkLogger.ConvertToVerbosity(cutoff))
+        vtkOutputWindow.SetInstance(previous)
+        messages.extend(split_vtk_messages(window.GetOutput() or ""))
+
+
+def split_vtk_messages(text: str) -> list[str]:
+    """Split the text of VTK's output window into messages, without their "In file, line" heads and object ids."""
+    messages, current = [], []
+    for line in [*text.splitlines(), ""]:
+        if _VTK_MESSAGE_HEAD.match(line.strip()) or not line.strip():
+            if current:
+                messages.append(" ".join(current))
+            current = []
+            continue
+        current.append(_VTK_OBJECT.sub("", line).strip())
+    return messages
+
+
 @contextlib.contextmanager
 def captured_native_output() -> Iterator[list[str]]:
     """Capture VTK's messages and everything written to file descriptor 2 during the block.
 
     Yields a list that, once the block ends, holds the captured texts: VTK's messages one by one (through
-    :func:`.rendering.captured_vtk_messages`), then what ITK and teem wrote to stderr.
+    :func:`captured_vtk_messages`), then what ITK and teem wrote to stderr.
     """
-    from .rendering import captured_vtk_messages
-
     texts: list[str] = []
     sys.stderr.flush()
     saved_fd = os.dup(2)

@@ -29,7 +29,7 @@ from typing import Any, BinaryIO
 from IsoSimilarityTFLib.errors import RenderError
 
 from .console import ProgressPrinter
-from .outputs import RunResult
+from .outputs import RunResult, open_headless, render_outputs
 
 #: Replies of the child: ("progress", label), ("wrote", role, path) for each file once complete, ("done", files,
 #: scene_files) or ("failed", one-line reason).
@@ -134,8 +134,6 @@ class _ReportedFiles(dict):
 
 def _serve(replies: BinaryIO, window: dict) -> None:
     """The child: open the headless Slicer, wait for one run, render it, reply."""
-    from .outputs import open_headless, render_outputs
-
     try:
         headless, failure = open_headless(**window), None
     except (RuntimeError, OSError, ValueError) as error:

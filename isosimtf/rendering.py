@@ -16,17 +16,17 @@ Coordinates: volumes are placed in Slicer's RAS world (millimetres); ``values`` 
 
 from __future__ import annotations
 
-import contextlib
 import math
 import os
-import re
 import shutil
 import tempfile
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from .read_errors import captured_native_output, captured_vtk_messages, first_message
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     from vtkmodules.vtkRenderingCore import vtkVolume, vtkVolumeProperty
@@ -262,47 +262,6 @@ def frame_content(
     camera.SetViewAngle(math.degrees(2.0 * math.atan(math.tan(half_angle) / factor)))
     camera.SetWindowCenter((old_x + centre_x) * factor, (old_y + centre_y) * factor)
     return True
-
-
-_VTK_MESSAGE_HEAD = re.compile(r"^(Warning|ERROR|Error|Generic Warning): In .*, line \d+\s*$")
-_VTK_OBJECT = re.compile(r"^\s*\w+ \(0x[0-9a-fA-F]+\):\s*")
-
-
-@contextlib.contextmanager
-def captured_vtk_messages() -> Iterator[list[str]]:
-    """Collect VTK's warnings and errors (``vtkWarningMacro``, ``vtkErrorMacro``) during a block, e.g. a render.
-
-    Yields a list that is filled when the block ends, one string per message (the object prefix and the
-    "In file.cxx, line N" head removed). Meanwhile nothing of it goes to stderr; afterwards VTK's output window and
-    logger are as before.
-    """
-    from vtkmodules.vtkCommonCore import vtkLogger, vtkOutputWindow, vtkStringOutputWindow
-
-    previous = vtkOutputWindow.GetInstance()
-    window = vtkStringOutputWindow()
-    vtkOutputWindow.SetInstance(window)
-    cutoff = vtkLogger.GetCurrentVerbosityCutoff()
-    vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_OFF)
-    messages: list[str] = []
-    try:
-        yield messages
-    finally:
-        vtkLogger.SetStderrVerbosity(vtkLogger.ConvertToVerbosity(cutoff))
-        vtkOutputWindow.SetInstance(previous)
-        messages.extend(split_vtk_messages(window.GetOutput() or ""))
-
-
-def split_vtk_messages(text: str) -> list[str]:
-    """Split the text of VTK's output window into messages, without their "In file, line" heads and object ids."""
-    messages, current = [], []
-    for line in [*text.splitlines(), ""]:
-        if _VTK_MESSAGE_HEAD.match(line.strip()) or not line.strip():
-            if current:
-                messages.append(" ".join(current))
-            current = []
-            continue
-        current.append(_VTK_OBJECT.sub("", line).strip())
-    return messages
 
 
 #: Widest lookup table (texels) Mesa's OpenGL takes (``GL_MAX_TEXTURE_SIZE`` of llvmpipe); desktop GPUs take 16384 or
@@ -796,8 +755,6 @@ def write_png(rgb: np.ndarray, path: str | os.PathLike) -> None:
     writer = vtkPNGWriter()
     writer.SetFileName(os.fspath(path))
     writer.SetInputData(image)
-    from .read_errors import captured_native_output, first_message  # read_errors imports this module
-
     with captured_native_output() as texts:  # libpng and VTK print their failures (a full disk) themselves
         writer.Write()
     if writer.GetErrorCode():

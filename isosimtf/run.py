@@ -11,9 +11,9 @@ import numpy as np
 
 from IsoSimilarityTFLib.design import STAGES as DESIGN_STAGES
 from IsoSimilarityTFLib.design import design_transfer_function
-from IsoSimilarityTFLib.errors import RenderError, UsageError
-from IsoSimilarityTFLib.options import DEFAULT_OPTIONS, LOOK_NAMES
-from IsoSimilarityTFLib.source import is_dask_array
+from IsoSimilarityTFLib.errors import OptionError, RenderError, UsageError
+from IsoSimilarityTFLib.options import DEFAULT_OPTIONS, LOOK_NAMES, OPTIONS, check_together
+from IsoSimilarityTFLib.source import is_lazy
 
 from .chunked_readers import preview_step, read_preview
 from .console import ProgressPrinter
@@ -141,25 +141,17 @@ def run(
     if look is not None and look not in LOOK_NAMES:
         raise UsageError(f"look must be one of {', '.join(LOOK_NAMES)}; got {look!r}")
     options = dict(options or {})
-    max_iter = options.get("max_iter", DEFAULT_OPTIONS["max_iter"])
-    convergence_iter = options.get("convergence_iter", DEFAULT_OPTIONS["convergence_iter"])
-    # Only a convergence_iter chosen (not the default) is refused: the default with a small max_iter is a run
-    # that stops early, which the clustering reports itself.
-    chosen = convergence_iter != DEFAULT_OPTIONS["convergence_iter"]
-    if chosen and max_iter is not None and convergence_iter is not None and convergence_iter > max_iter:
-        raise UsageError(
-            f"--convergence-iter {convergence_iter} is more than --max-iter {max_iter}: affinity propagation could "
-            "never count that many stable iterations; lower --convergence-iter or raise --max-iter"
-        )
-    tissues, n_bins = options.get("tissues"), options.get("n_bins", DEFAULT_OPTIONS["n_bins"])
-    if isinstance(tissues, int) and not isinstance(tissues, bool) and n_bins is not None and tissues > n_bins:
-        # The classes (at most one per bin) are known only after the design; more tissues than bins never fit.
-        raise UsageError(f"--tissues {tissues} is more than --bins {n_bins}: there can be at most one tissue per bin")
+    try:  # the checks across options, worded with the flags (the design makes them again)
+        check_together(options, lambda option: OPTIONS[option].flag)
+    except OptionError as error:
+        raise UsageError(str(error)) from None
     warnings: list[str] = []
 
     def warning(message: str) -> None:
         warnings.append(message)
         if warn is not None:
+            if progress is not None:  # a warning starts its own line, never the end of a progress line
+                progress.finish()
             warn(message)
 
     if render and not slicer_core_available():
@@ -333,7 +325,7 @@ def label_count(values: np.ndarray) -> Optional[int]:
     of neighbouring voxel pairs along i that hold equal values, leaving out pairs of the most common value (the
     background), above :data:`LABEL_MAP_EQUAL_NEIGHBOURS`; or it spans at most :data:`LABEL_MAP_VALUES` values.
     """
-    if not np.issubdtype(values.dtype, np.integer) or is_dask_array(values):
+    if not np.issubdtype(values.dtype, np.integer) or is_lazy(values):
         return None
     planes = values[:: max(1, min(8, values.shape[0] // 32))]  # at least 32 planes: small labels stay in
     # A part never holds more values than the whole: a scan's thousands of values show on every 4th row and column

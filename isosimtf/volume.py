@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from IsoSimilarityTFLib.source import is_dask_array
+from IsoSimilarityTFLib.source import as_array
 
 __all__ = ["Volume", "right_handed"]
 
@@ -34,7 +34,7 @@ class Volume:
 
     def __post_init__(self) -> None:
         # A dask array (a volume read lazily, see .chunked_readers) stays lazy.
-        values = self.values if is_dask_array(self.values) else np.asarray(self.values)
+        values = as_array(self.values)
         if values.ndim != 3:
             raise ValueError(f"Volume values must be 3-D (k, j, i); got shape {values.shape}")
         directions = np.eye(3) if self.directions is None else np.array(self.directions, dtype=float)

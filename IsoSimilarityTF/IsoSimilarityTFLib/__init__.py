@@ -1,13 +1,16 @@
 """IsoSimilarityTF: automatic transfer functions for direct volume rendering.
 
-The pipeline, one module per step: :mod:`.quantize` (isovalue bins), :mod:`.cells` (unit cells and octree levels),
-:mod:`.similarity` (hierarchical isovalue similarity), :mod:`.clustering` (affinity propagation), :mod:`.classes`
-(ranked classes), :mod:`.tissues` (classes grouped into tissues), :mod:`.look` (default colours and
-opacities), :mod:`.transfer_function` (VTK objects and Slicer files), tied together by
-:func:`design_transfer_function`, whose options are the table in :mod:`.options` and whose errors are in
-:mod:`.errors`. :mod:`.mrml` puts a design into a Slicer scene, :mod:`.pictures` draws the similarity matrix.
-Needs only numpy and VTK, which Slicer ships (affinity propagation is its own, :mod:`.affinity_propagation`), and
-dask only when given a dask array; never Qt or the Slicer application, so it runs headless.
+The pipeline, one module per step: :mod:`.source` (the volume, numpy or dask, read in slabs), :mod:`.survey` (one
+pass for the value range's facts), :mod:`.value_range` (the default range's rules: padding and outliers left out),
+:mod:`.quantize` (isovalue bins), :mod:`.cells` (unit cells and octree levels), :mod:`.similarity` (hierarchical
+isovalue similarity, from one stream over the bins whose :mod:`.taps` gather what later steps need),
+:mod:`.clustering` (affinity propagation), :mod:`.classes` (ranked classes), :mod:`.tissues` (classes grouped into
+tissues), :mod:`.roles`, :mod:`.look` and :mod:`.gallery` (the looks), :mod:`.transfer_function` (VTK objects and
+Slicer files), tied together by :func:`design_transfer_function`, whose options are the table in :mod:`.options` and
+whose errors are in :mod:`.errors`. :mod:`.mrml` puts a design into a Slicer scene, :mod:`.pictures` draws the
+similarity matrix. Needs only numpy and VTK, which Slicer ships (affinity propagation is its own,
+:mod:`.affinity_propagation`), and dask only when given a dask array; never Qt or the Slicer application, so it runs
+headless.
 """
 
 from .cells import octree_levels, unit_cell_intervals

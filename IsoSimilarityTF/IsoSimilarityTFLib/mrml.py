@@ -20,6 +20,7 @@ from typing import Optional
 import numpy as np
 
 from .design import TransferFunctionDesign
+from .pictures import transfer_function_icon
 from .quantize import quantize
 from .transfer_function import configure_volume_property, points_of_volume_property
 
@@ -473,8 +474,6 @@ def add_preset(design: TransferFunctionDesign, volume_rendering_logic, name: str
     Returns:
         The preset node, in ``volume_rendering_logic.GetPresetsScene()``.
     """
-    from .pictures import transfer_function_icon
-
     if not name or not name.strip():
         raise ValueError("a preset needs a name")
     presets = volume_rendering_logic.GetPresetsScene()

@@ -9,7 +9,7 @@ import math
 import numbers
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Optional
+from typing import Any, Callable, Optional
 
 from .errors import OptionError
 
@@ -158,4 +158,33 @@ def check_options(options: Mapping[str, Any]) -> dict[str, Any]:
     unknown = sorted(set(options) - set(OPTIONS))
     if unknown:
         raise TypeError(f"unknown option(s): {', '.join(unknown)}; known: {', '.join(OPTIONS)}")
-    return {name: option.check(options.get(name, option.default)) for name, option in OPTIONS.items()}
+    checked = {name: option.check(options.get(name, option.default)) for name, option in OPTIONS.items()}
+    check_together(checked)
+    return checked
+
+
+def check_together(options: Mapping[str, Any], name: Callable[[str], str] = str) -> None:
+    """The checks that take two options, on options each already checked (missing ones at their default);
+    ``name(option)`` words the message (the command line gives its flags).
+
+    Raises:
+        OptionError: a ``convergence_iter`` chosen above ``max_iter`` (affinity propagation could never count that
+            many stable iterations; the default with a small ``max_iter`` is a run that stops early, which the
+            clustering reports itself); a number of ``tissues`` above ``n_bins`` (at most one tissue per bin).
+    """
+    max_iter = options.get("max_iter", DEFAULT_OPTIONS["max_iter"])
+    convergence_iter = options.get("convergence_iter", DEFAULT_OPTIONS["convergence_iter"])
+    chosen = convergence_iter != DEFAULT_OPTIONS["convergence_iter"]
+    if chosen and max_iter is not None and convergence_iter is not None and convergence_iter > max_iter:
+        raise OptionError(
+            f"{name('convergence_iter')} {convergence_iter} is more than {name('max_iter')} {max_iter}: affinity "
+            f"propagation could never count that many stable iterations; lower {name('convergence_iter')} or raise "
+            f"{name('max_iter')}"
+        )
+    tissues, n_bins = options.get("tissues"), options.get("n_bins", DEFAULT_OPTIONS["n_bins"])
+    if isinstance(tissues, int) and not isinstance(tissues, bool) and n_bins is not None and tissues > n_bins:
+        # The classes (at most one per bin) are known only after the design; more tissues than bins never fit.
+        raise OptionError(
+            f"{name('tissues')} {tissues} is more than {name('n_bins')} {n_bins}: there can be at most one tissue "
+            "per bin"
+        )

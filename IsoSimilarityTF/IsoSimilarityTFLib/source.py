@@ -28,6 +28,16 @@ def is_dask_array(values: object) -> bool:
     return any(cls.__module__.startswith("dask.") and cls.__name__ == "Array" for cls in type(values).__mro__)
 
 
+def is_lazy(values: object) -> bool:
+    """Whether a volume is read lazily, a row of chunks at a time (a dask array), rather than held in memory."""
+    return is_dask_array(values)
+
+
+def as_array(values):
+    """The volume as an array: a lazy one as it is, anything else through ``np.asarray``."""
+    return values if is_lazy(values) else np.asarray(values)
+
+
 def validate_volume(values):
     """Return ``values`` as an array (a dask array as it is) if it is a 3-D real scalar volume, else raise
     ``ValueError`` saying why.
@@ -40,8 +50,7 @@ def validate_volume(values):
             "masked arrays are not supported (the mask would be ignored): fill the masked voxels, e.g. "
             "values.filled(values.min()), or crop the volume"
         )
-    if not is_dask_array(values):
-        values = np.asarray(values)
+    values = as_array(values)
     numeric = np.issubdtype(values.dtype, np.integer) or np.issubdtype(values.dtype, np.floating)
     if values.dtype == bool or not numeric:
         raise ValueError(f"expected a scalar volume of integers or floats; got dtype {values.dtype}")
@@ -70,7 +79,7 @@ class VolumeSource:
     def __init__(self, values) -> None:
         self.values = validate_volume(values)
         #: Whether the volume is read lazily, a row of chunks at a time (a dask array).
-        self.lazy = is_dask_array(self.values)
+        self.lazy = is_lazy(self.values)
 
     @property
     def shape(self) -> tuple[int, int, int]:

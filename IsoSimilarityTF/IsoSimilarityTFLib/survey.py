@@ -2,8 +2,9 @@
 
 In one read of every slab (:meth:`.source.VolumeSource.slabs`): the number of NaN or infinite voxels, the minimum and
 maximum, a strided sample (every s-th voxel along each axis) on which the padding and outlier rules decide
-(:mod:`.value_range`), and for integer volumes of at most 16 bits the exact histogram of their values, from which
-those rules take their exact counts without reading the volume again.
+(:mod:`.value_range`), and for integer volumes of at most 16 bits read lazily the exact histogram of their values,
+from which those rules take their exact counts without reading the volume again (in memory, a pass for the counts
+costs less than the histogram: a few milliseconds against 30 on 192^3 int16).
 """
 
 from dataclasses import dataclass
@@ -31,8 +32,8 @@ class Survey:
             ``nonfinite``.
         sample: every :attr:`step`-th voxel along each axis, flat, float64, in the volume's order.
         step: the sample's step.
-        histogram: for integer volumes of at most 16 bits, ``(2 ** bits,)`` int64 voxels per value from
-            :attr:`offset` up (else None).
+        histogram: for integer volumes of at most 16 bits read lazily, ``(2 ** bits,)`` int64 voxels per value
+            from :attr:`offset` up (else None).
         offset: the value of ``histogram[0]``.
     """
 
@@ -95,7 +96,7 @@ def survey_volume(
     shape, dtype = source.shape, source.dtype
     step = sample_step(shape, sample_voxels)
     floating = np.issubdtype(dtype, np.floating)
-    small = _small_integers(dtype)
+    small = source.lazy and _small_integers(dtype)
     histogram = np.zeros(1 << (8 * dtype.itemsize), dtype=np.int64) if small else None
     nonfinite = 0
     low = high = None
@@ -105,9 +106,9 @@ def survey_volume(
         if small:
             histogram += _value_histogram(slab)
         else:
-            if floating:
-                nonfinite += int(slab.size - np.count_nonzero(np.isfinite(slab)))
             slab_low, slab_high = slab.min(), slab.max()
+            if floating and not (np.isfinite(slab_low) and np.isfinite(slab_high)):  # NaN and infinities show there
+                nonfinite += int(slab.size - np.count_nonzero(np.isfinite(slab)))
             low = slab_low if low is None else min(low, slab_low)
             high = slab_high if high is None else max(high, slab_high)
         if progress is not None:

@@ -19,6 +19,7 @@ the range's ends and the counts of voxels left out are exact: from the survey's 
 most 16 bits, else from one more pass, only when something is left out.
 """
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any, Optional
 
@@ -35,6 +36,8 @@ PADDING_GAP = 0.15
 MIN_DISTINCT = 32
 #: Spreads of the central values (0.1th to 99.9th percentile) beyond which a value is an outlier.
 OUTLIER_SPREADS = 2.0
+# Voxels compared at a time in the pass for the exact counts: a few of their boolean masks stay in cache.
+_BLOCK_VOXELS = 1 << 16
 
 
 @dataclass(frozen=True)
@@ -107,24 +110,42 @@ def _counts_from_histogram(survey: Survey, above: float, below: float, padding: 
     )
 
 
+def _blocks(source: VolumeSource) -> Iterator[np.ndarray]:
+    """The volume in flat blocks of about :data:`_BLOCK_VOXELS` voxels (whole rows), each small enough to stay in
+    cache while several comparisons are made on it."""
+    for _, slab in source.slabs():
+        rows = slab.reshape(-1, slab.shape[-1])
+        step = max(1, _BLOCK_VOXELS // rows.shape[1])
+        for start in range(0, len(rows), step):
+            yield rows[start : start + step]
+
+
 def _counts_from_pass(source: VolumeSource, above: float, below: float, padding: list) -> _Counts:
-    """:class:`_Counts` in one pass over the volume (in its own dtype: a float64 copy would cost more than the
-    pass)."""
+    """:class:`_Counts` in one pass over the volume, a cache-sized block at a time, in its own dtype (a float64 copy
+    would cost more than the pass). A side with no cut (``-inf`` or ``inf``) is not compared, and a padding value at
+    a cut that is the volume's extreme is counted by that cut (every voxel at or beyond it holds it)."""
     dtype = source.dtype
     limits = np.iinfo(dtype) if np.issubdtype(dtype, np.integer) else np.finfo(dtype)
     low, high = limits.max, limits.min
     n_below = n_above = 0
-    at_padding = [0] * len(padding)
-    for _, slab in source.slabs():
-        at_or_below, at_or_above = slab <= above, slab >= below
-        inside = ~(at_or_below | at_or_above)
-        low = min(low, np.min(slab, where=inside, initial=limits.max))
-        high = max(high, np.max(slab, where=inside, initial=limits.min))
-        n_below += int(np.count_nonzero(at_or_below))
-        n_above += int(np.count_nonzero(at_or_above))
-        for k, value in enumerate(padding):
-            at_padding[k] += int(np.count_nonzero(slab == value))
-    return _Counts(float(low), float(high), n_below, n_above, tuple(at_padding))
+    counted_apart = [value for value in padding if value not in (above, below)]
+    at_padding = dict.fromkeys(counted_apart, 0)
+    for block in _blocks(source):
+        outside = None
+        for cut, side in ((above, -1), (below, 1)):
+            if np.isinf(cut):
+                continue
+            beyond = block <= cut if side < 0 else block >= cut
+            count = int(np.count_nonzero(beyond))
+            n_below, n_above = (n_below + count, n_above) if side < 0 else (n_below, n_above + count)
+            outside = beyond if outside is None else np.logical_or(outside, beyond, out=outside)
+        inside = block if outside is None else block[~outside]
+        if inside.size:
+            low, high = min(low, inside.min()), max(high, inside.max())
+        for value in counted_apart:
+            at_padding[value] += int(np.count_nonzero(block == value))
+    counts = tuple(n_below if value == above else n_above if value == below else at_padding[value] for value in padding)
+    return _Counts(float(low), float(high), n_below, n_above, counts)
 
 
 def robust_value_range(
@@ -179,7 +200,7 @@ def robust_value_range(
 
     # Outliers: beyond the central values (padding left out) by more than OUTLIER_SPREADS spreads.
     core = sample[keep_low:keep_high]
-    q_low, q_high = np.percentile(core, [0.1, 99.9])
+    q_low, q_high = np.percentile(core, [0.1, 99.9], overwrite_input=True)  # the sample is ours, not needed after
     spread = q_high - q_low
     cut_low, cut_high = (
         (q_low - OUTLIER_SPREADS * spread, q_high + OUTLIER_SPREADS * spread) if spread > 0 else (-np.inf, np.inf)

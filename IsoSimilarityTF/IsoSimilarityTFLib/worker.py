@@ -53,7 +53,7 @@ from typing import Optional
 import numpy as np
 
 from . import errors
-from .design import TransferFunctionDesign
+from .design import TransferFunctionDesign, design_transfer_function
 from .value_range import RobustRange
 
 REQUEST_FILE = "request.json"
@@ -445,8 +445,6 @@ def _watch(folder: str, parent: Optional[int], parent_started=None) -> None:
 
 def main(argv=None) -> int:
     """The child: ``python -c _BOOTSTRAP LIBRARY_PARENT FOLDER`` (or ``python -m IsoSimilarityTFLib.worker FOLDER``)."""
-    from .design import design_transfer_function
-
     argv = sys.argv[1:] if argv is None else argv
     folder = argv[-1]
     with open(os.path.join(folder, REQUEST_FILE), encoding="utf-8") as file:
