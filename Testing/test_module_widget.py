@@ -388,7 +388,16 @@ def test_f2_on_slicer_5_8_closing_the_scene_five_times_changes_no_choice(module,
     assert {name: values[name] for name in choices} == {name: before[name] for name in choices}
 
 
-def test_g5_cleanup_leaves_no_gui_bound_to_the_parameter_node(module, slicer_app):
+class _Wrapper512(_Wrapper58):
+    """Slicer 5.10 and later: ``connectGui`` returns its tag (wrapper.py:253 at v5.12.3)."""
+
+    def connectGui(self, ui):
+        super().connectGui(ui)
+        return max(self._parameterGUIs)
+
+
+@pytest.mark.parametrize("wrapper_class", [_Wrapper58, _Wrapper512], ids=["5.8", "5.12"])
+def test_g5_cleanup_leaves_no_gui_bound_to_the_parameter_node(module, slicer_app, wrapper_class):
     import vtk
 
     widget = module.IsoSimilarityTFWidget()
@@ -396,7 +405,7 @@ def test_g5_cleanup_leaves_no_gui_bound_to_the_parameter_node(module, slicer_app
     widget.logic = module.IsoSimilarityTFLogic()
     widget.panel = module.PanelModel(widget.logic, widget)
     values = {name: getattr(module.IsoSimilarityTFParameterNode, name, None) for name in ("preference", "tissues")}
-    wrapper = _Wrapper58(vtk.vtkObject(), {**values, "inputVolume": None}, {}, lambda ui, name: None)
+    wrapper = wrapper_class(vtk.vtkObject(), {**values, "inputVolume": None}, {}, lambda ui, name: None)
     widget.setParameterNode(wrapper)
     assert wrapper._parameterGUIs and wrapper.parameterNode.HasObserver("ModifiedEvent")
     widget.cleanup()  # Reload, or Slicer closing
