@@ -335,3 +335,23 @@ def test_ome_zarr_micrometres_become_millimetres(tmp_path: Path) -> None:
     ]
     with pytest.raises(ValueError, match="its axes are in 'parsec', a unit not known here"):
         read_volume(tmp_path / "um.ome.zarr")
+
+
+@pytest.mark.parametrize("step", [1, 2, 3, 7])
+def test_the_preview_kept_from_the_designs_read_is_the_one_read_apart(tmp_path: Path, step) -> None:
+    """The render preview of a volume read lazily comes from the design's first read (its value_tap): the same
+    voxels, the same space, as a read of its own."""
+    import dask.array as da
+
+    from IsoSimilarityTFLib import design_transfer_function
+
+    values = head_phantom(24, seed=1).values[:, :20, :22]
+    lazy = Volume(da.from_array(values, chunks=(5, 20, 22)), (0.5, 0.6, 1.0), (1.0, 2.0, 3.0), np.eye(3), "v")
+    tap = chunked_readers.PreviewTap(lazy.shape, step)
+    assert not tap.complete
+    design_transfer_function(lazy.values, lazy.spacing, value_tap=tap, n_bins=32)
+    assert tap.complete
+    kept, read = tap.preview(lazy), chunked_readers.read_preview(lazy, step)
+    np.testing.assert_array_equal(kept.values, read.values)
+    assert (kept.spacing, kept.origin, kept.name) == (read.spacing, read.origin, read.name)
+    np.testing.assert_array_equal(kept.directions, read.directions)

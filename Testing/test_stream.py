@@ -17,6 +17,7 @@ from IsoSimilarityTFLib.source import VolumeSource
 from IsoSimilarityTFLib.survey import survey_volume
 from IsoSimilarityTFLib.value_range import robust_value_range
 from IsoSimilarityTFLib.worker import DesignProcess
+from isosimtf.chunked_readers import PreviewTap
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = {"IsoSimilarityTFLib": ROOT / "IsoSimilarityTF" / "IsoSimilarityTFLib", "isosimtf": ROOT / "isosimtf"}
@@ -55,14 +56,17 @@ def _blobs(dtype) -> np.ndarray:
     ("dtype", "padded", "most"), [(np.int16, False, 2), (np.int16, True, 2), (np.float32, True, 3)]
 )
 def test_a_chunked_volume_is_read_at_most_twice_or_three_times(dtype, padded, most):
-    """The survey and the stream: twice; a float volume with padding once more for the exact range (today's
-    rule read an int16 volume 4 times and a padded float32 one 9 times)."""
+    """The survey and the stream: twice, the render preview included; a float volume with padding once more for the
+    exact range (the previous path read an int16 volume 4 times and a padded float32 one 9 times, and the command
+    line read its preview apart)."""
     values = _blobs(dtype)
     if padded:
         values[:, :, :5] = -3024
     store = ChunkStore(values, (8, 40, 44))
-    design = design_transfer_function(da.from_array(store, chunks=store.chunks, asarray=True), n_bins=64)
-    assert store.whole_reads() == most
+    preview = PreviewTap(values.shape, 3)  # the command line's render preview of a volume read lazily
+    lazy = da.from_array(store, chunks=store.chunks, asarray=True)
+    design = design_transfer_function(lazy, n_bins=64, value_tap=preview)
+    assert store.whole_reads() == most and preview.complete
     expected = design_transfer_function(values, n_bins=64)
     assert {**design.to_dict(), "timings_s": None} == {**expected.to_dict(), "timings_s": None}
     assert (design.range_warning() is None) == (not padded) and design.robust_range == expected.robust_range

@@ -185,6 +185,36 @@ def read_preview(volume: Volume, step: int) -> Volume:
     return Volume(values, spacing, volume.origin, volume.directions, volume.name)
 
 
+class PreviewTap:
+    """The preview of :func:`read_preview`, kept from the slabs of a read the design makes anyway (its
+    ``value_tap``): every ``step``-th plane, strided, as the slabs go by.
+
+    Args:
+        shape: the volume's shape ``(K, J, I)``.
+        step: voxels per preview voxel along each axis.
+    """
+
+    def __init__(self, shape: tuple[int, int, int], step: int) -> None:
+        self.shape, self.step = tuple(int(n) for n in shape), int(step)
+        self._planes: dict[int, np.ndarray] = {}
+
+    def __call__(self, first: int, slab: np.ndarray) -> None:
+        step = self.step
+        for k in range(first + (-first) % step, first + len(slab), step):
+            self._planes[k] = np.array(slab[k - first, ::step, ::step])
+
+    @property
+    def complete(self) -> bool:
+        """Whether every plane of the preview was seen."""
+        return all(k in self._planes for k in range(0, self.shape[0], self.step))
+
+    def preview(self, volume: Volume) -> Volume:
+        """The preview of ``volume``, as :func:`read_preview` reads it (once :attr:`complete`)."""
+        values = np.stack([self._planes[k] for k in range(0, self.shape[0], self.step)])
+        spacing = tuple(s * self.step for s in volume.spacing)
+        return Volume(values, spacing, volume.origin, volume.directions, volume.name)
+
+
 def raw_array(data: Path, shape: tuple[int, int, int], dtype: np.dtype, offset: int = 0) -> np.ndarray:
     """A raw volume file read into memory, in its own dtype (native byte order), shape ``(K, J, I)``."""
     values = np.fromfile(data, dtype=dtype, count=int(np.prod(shape)), offset=offset).reshape(shape)

@@ -15,7 +15,7 @@ from IsoSimilarityTFLib.errors import OptionError, RenderError, UsageError
 from IsoSimilarityTFLib.options import DEFAULT_OPTIONS, LOOK_NAMES, OPTIONS, check_together
 from IsoSimilarityTFLib.source import is_lazy
 
-from .chunked_readers import preview_step, read_preview
+from .chunked_readers import PreviewTap, preview_step, read_preview
 from .console import ProgressPrinter
 from .inputs import DEFAULT_PHANTOM_SIZE, PathLike, input_info, load_input
 from .output_folder import (
@@ -225,7 +225,11 @@ def _run_locked(
         if step is not None and step > 1:
             warning(_preview_warning(volume.shape, volume.spacing, step))
 
-        design = design_transfer_function(volume.values, volume.spacing, progress=progress.design_callback, **options)
+        # The render preview of a volume read lazily is kept from the design's first read: no read of its own.
+        preview = PreviewTap(volume.shape, step) if step is not None else None
+        design = design_transfer_function(
+            volume.values, volume.spacing, progress=progress.design_callback, value_tap=preview, **options
+        )
         # Padding and outliers the design's default range left out, as the Slicer module says.
         range_warning = design.range_warning("--range LOW HIGH")
         if range_warning is not None:
@@ -250,7 +254,7 @@ def _run_locked(
                 start = time.perf_counter()
                 detail = f", from every {_ordinal(step)} voxel" if step is not None and step > 1 else ""
                 progress.stage("render", f"(Slicer volume rendering, headless{detail})")
-                _render(renderer, result, step, view=view, size=size, progress=progress)
+                _render(renderer, result, preview, view=view, size=size, progress=progress)
                 timings["render"] = time.perf_counter() - start
         finally:
             removed = remove_stale(path, previous.unchanged, result.written(), input_file)
@@ -275,7 +279,7 @@ def _run_locked(
 def _render(
     renderer: RenderProcess,
     result: RunResult,
-    preview_step: Optional[int],
+    preview: Optional[PreviewTap],
     *,
     view: str,
     size: int,
@@ -284,15 +288,18 @@ def _render(
     """The render stage: ``renderer`` makes the pictures and the scene; a failure is one :class:`RenderError` line.
 
     Args:
-        preview_step: for a volume read lazily, the step of the preview read first (into ``result.preview``) and
-            pictured; None for a volume in memory.
+        preview: for a volume read lazily, the preview pictured (into ``result.preview``): kept from the design's
+            read, or read now if that read did not give it all; None for a volume in memory.
     """
     try:
-        if preview_step is not None:
-            progress.update(f"reading every {_ordinal(preview_step)} voxel" if preview_step > 1 else "reading")
+        if preview is not None:
             start = time.perf_counter()
-            preview = read_preview(result.volume, preview_step)
-            result.preview = Preview(preview, preview_step, time.perf_counter() - start)
+            if preview.complete:
+                volume = preview.preview(result.volume)
+            else:
+                progress.update(f"reading every {_ordinal(preview.step)} voxel" if preview.step > 1 else "reading")
+                volume = read_preview(result.volume, preview.step)
+            result.preview = Preview(volume, preview.step, time.perf_counter() - start)
         renderer.render(result, view=view, size=size, progress=progress)
     except (RuntimeError, OSError, ValueError) as error:
         raise RenderError(

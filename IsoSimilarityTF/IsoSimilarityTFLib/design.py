@@ -691,7 +691,10 @@ def _source(values, opts: dict) -> Union[VolumeSource, Quantization]:
 
 
 def _binned(
-    source: Union[VolumeSource, Quantization], opts: dict, progress: Callable[[float], None]
+    source: Union[VolumeSource, Quantization],
+    opts: dict,
+    progress: Callable[[float], None],
+    value_tap: Optional[Callable[[int, np.ndarray], None]] = None,
 ) -> tuple[VolumeSource, tuple[float, float], Optional[RobustRange]]:
     """The volume's bins (lazy for a dask volume: binned as the stream reads it), the value range they cover, and
     what the default range left out (None: nothing, or a range was given).
@@ -702,7 +705,7 @@ def _binned(
     if isinstance(source, Quantization):
         return VolumeSource(source.bins), tuple(source.value_range), None
     n_bins = opts["n_bins"]
-    survey = survey_volume(source, progress=progress)
+    survey = survey_volume(source, progress=progress, tap=value_tap)
     data_range = checked_data_range(survey, n_bins)
     robust = robust_value_range(source, survey=survey) if opts["value_range"] is None else None
     if robust is not None and not robust.excludes:
@@ -717,6 +720,7 @@ def design_transfer_function(
     spacing: Optional[Sequence[float]] = None,
     *,
     progress: Optional[StageProgress] = None,
+    value_tap: Optional[Callable[[int, np.ndarray], None]] = None,
     **options,
 ) -> TransferFunctionDesign:
     """Design a transfer function for a volume: quantize, similarity, affinity propagation, classes.
@@ -726,6 +730,9 @@ def design_transfer_function(
             quantized volume.
         spacing: voxel spacing ``(x, y, z)`` in mm, or one number for cubic voxels (the look's preview is made in mm).
         progress: called as ``progress(stage, fraction, message)``; raising from it cancels the design.
+        value_tap: called as ``value_tap(first plane, slab)`` with every slab of the volume's values, in order
+            along axis 0, during the design's first read of them (a caller's own use of that read, e.g. the command
+            line's render preview of a volume read lazily: no read of its own). Not called for a quantized volume.
         **options: ``n_bins``, ``value_range``, ``crossing``, ``normalization``, ``levels``, ``preference``,
             ``damping``, ``max_iter``, ``convergence_iter``, ``max_classes``, ``background``, ``unconverged``
             (see :data:`.options.OPTIONS`). ``unconverged`` says what happens when affinity propagation does not
@@ -764,7 +771,7 @@ def design_transfer_function(
     source = _source(values, opts)
     with stage("quantize", "quantizing"):
         bins, value_range, robust = _binned(
-            source, opts, lambda fraction: report("quantize", fraction, "quantize: value range")
+            source, opts, lambda fraction: report("quantize", fraction, "quantize: value range"), value_tap
         )
     n_bins, shape = opts["n_bins"], bins.shape
 

@@ -85,6 +85,7 @@ def survey_volume(
     source: VolumeSource,
     sample_voxels: int = SAMPLE_VOXELS,
     progress: Optional[Callable[[float], None]] = None,
+    tap: Optional[Callable[[int, np.ndarray], None]] = None,
 ) -> Survey:
     """Survey a volume in one pass (see the module notes).
 
@@ -92,6 +93,8 @@ def survey_volume(
         source: the volume.
         sample_voxels: voxels of the sample.
         progress: called as ``progress(fraction of the planes read)`` after each slab; raising from it aborts.
+        tap: called as ``tap(first plane, slab)`` with every slab of the volume's values, in order along axis 0 (a
+            caller's own use of the same read, e.g. a preview).
     """
     shape, dtype = source.shape, source.dtype
     step = sample_step(shape, sample_voxels)
@@ -102,6 +105,8 @@ def survey_volume(
     low = high = None
     samples = []
     for first, slab in source.slabs():
+        if tap is not None:
+            tap(first, slab)
         samples.append(slab[(-first) % step :: step, ::step, ::step])
         if small:
             histogram += _value_histogram(slab)
