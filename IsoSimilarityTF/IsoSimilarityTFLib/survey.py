@@ -30,7 +30,7 @@ class Survey:
         nonfinite: voxels that are NaN or infinite (a float volume's).
         low, high: the minimum and maximum, as Python numbers (exact for integers of any size); NaN when
             ``nonfinite``.
-        sample: every :attr:`step`-th voxel along each axis, flat, float64, in the volume's order.
+        sample: every :attr:`step`-th voxel along each axis, flat, in the volume's dtype and order.
         step: the sample's step.
         histogram: for integer volumes of at most 16 bits read lazily, ``(2 ** bits,)`` int64 voxels per value
             from :attr:`offset` up (else None).
@@ -126,7 +126,7 @@ def survey_volume(
         low = high = float("nan")
     else:
         low, high = low.item(), high.item()
-    sample = np.concatenate([np.asarray(s, dtype=np.float64).reshape(-1) for s in samples])
+    sample = np.concatenate([np.asarray(s).reshape(-1) for s in samples])
     return Survey(shape, dtype, nonfinite, low, high, sample, step, histogram, offset)
 
 

@@ -172,7 +172,8 @@ def robust_value_range(
     data_range = (float(low), float(high))
     if survey.nonfinite or beyond_float_sums(survey):
         return RobustRange(data_range, data_range)
-    sample = np.sort(survey.sample)
+    # Sorted in the volume's own dtype (a radix sort for 8- and 16-bit integers), then widened: the same order.
+    sample = np.sort(survey.sample, kind="stable").astype(np.float64)
     if high <= low or sample.size < 2:
         return RobustRange(data_range, data_range)
 
