@@ -233,6 +233,7 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
         self._parameterNode = None
         self._parameterNodeGuiTag = None
         self._pollTimer = None
+        self._looksTimer = None
         self.panel = None
         # The tree's editing widgets by (level, id) of their row, and the looks' buttons by name.
         self._rowWidgets = {}
@@ -250,6 +251,13 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
         self.logic = IsoSimilarityTFLogic()
         self.panel = PanelModel(self.logic, self)
         self.panel.observe_scene(slicer.mrmlScene)
+
+        # The looks are drawn once the tree is (their thumbnails take about 30-80 ms): a Detail slider dragged over
+        # several settings regroups at each and draws the looks of the last one only.
+        self._looksTimer = qt.QTimer()
+        self._looksTimer.setSingleShot(True)
+        self._looksTimer.setInterval(0)
+        self._looksTimer.connect("timeout()", self._showLooks)
 
         self._pollTimer = qt.QTimer()
         self._pollTimer.setInterval(POLL_INTERVAL_MS)
@@ -278,8 +286,9 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
     def cleanup(self) -> None:
         """The widget is deleted (Slicer closes, or Reload): stop a design, and let go of the scene and of the
         parameter node (on Slicer 5.8 and 5.10 only ``disconnectGui`` removes the wrapper's GUI observer)."""
-        if self._pollTimer is not None:
-            self._pollTimer.stop()
+        for timer in (self._pollTimer, self._looksTimer):
+            if timer is not None:
+                timer.stop()
         self.panel.stop()
         self.setParameterNode(None)
         self.removeObservers()
@@ -478,8 +487,9 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
         slicer.app.processEvents()
 
     # Looks -----------------------------------------------------------------------------------------------------------
-    def _showLooks(self, design) -> None:
-        """One button per look of the design's gallery (made per grouping), with its thumbnail and promise."""
+    def _showLooks(self) -> None:
+        """One button per look of the shown design's gallery (made per grouping), with its thumbnail and promise."""
+        design = self.panel.detail_design()
         layout = self.ui.looksButtonsWidget.layout()
         for button in self._lookButtons.values():
             layout.removeWidget(button)
@@ -492,6 +502,7 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
         self.ui.looksLabel.text = _("{count} looks made from these classes; the first is the first click's.").format(
             count=len(looks)
         )
+        chosen = self.panel.look()
         for index, look in enumerate(looks):
             button = qt.QToolButton()
             button.text = look.title
@@ -503,6 +514,7 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
             button.connect("clicked(bool)", functools.partial(self.onLookClicked, look.name))
             layout.addWidget(button, index // LOOKS_PER_ROW, index % LOOKS_PER_ROW)
             self._lookButtons[look.name] = button
+        self.show_look(chosen)
 
     def show_look(self, name: Optional[str]) -> None:
         for lookName, button in self._lookButtons.items():
@@ -563,7 +575,7 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
         return _("1 tissue") if count == 1 else _("{count} tissues").format(count=count)
 
     def show_tree(self, design) -> None:
-        self._showLooks(design)
+        self._looksTimer.start()
         tree = self.ui.tissuesTreeWidget
         tree.clear()  # deletes the items and their widgets
         self._rowWidgets = {}
@@ -1085,7 +1097,8 @@ class IsoSimilarityTFTest(ScriptedLoadableModuleTest):
         self.assertEqual(widget.ui.statusLabel.text, "")
         self.assertFalse(mrml.modified_outside(volumeNode))
         del widget.confirm_overwrite
-        # The looks: one button each, the chosen one checked; a click shows that look.
+        # The looks (drawn once the tree is): one button each, the chosen one checked; a click shows that look.
+        slicer.app.processEvents()
         looks = [look.name for look in widget.logic.design.looks]
         self.assertEqual(sorted(widget._lookButtons), sorted(looks))
         self.assertTrue(widget._lookButtons[widget.logic.design.chosen_look].checked)

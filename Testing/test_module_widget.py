@@ -77,6 +77,7 @@ def _connect(widget, module, parameters):
     import vtk
 
     widget.panel = module.PanelModel(widget.logic, widget)
+    widget._looksTimer = mock.MagicMock(name="looks timer")  # setup() makes it; its timeout is _showLooks
     widget._parameterNode = parameters
     widget.panel.set_parameters(parameters, node=vtk.vtkObject())
 
@@ -524,3 +525,18 @@ def test_apply_designs_with_the_panels_options(panel, module):
     assert (design.n_bins, design.options["levels"], design.options["modality"]) == (32, 2, "mr")
     assert design.options["tissues"] == "auto" and widget.panel.shown_volume is volume and not widget.panel.running
     assert mrml.design_of_volume(volume).to_dict() == design.to_dict()
+
+
+def test_the_looks_are_drawn_after_the_tree_one_button_each(panel, module):
+    widget, _ = panel
+    module.qt.QToolButton.side_effect = lambda *args: mock.MagicMock(name="QToolButton")  # one per look
+    widget.panel.refresh()  # the design is shown: the tree now, the looks when the timer fires
+    widget._looksTimer.start.assert_called()
+    widget._showLooks()  # the timer's timeout
+    design = widget.logic.design
+    assert list(widget._lookButtons) == [look.name for look in design.looks]
+    assert [name for name, button in widget._lookButtons.items() if button.checked] == [design.chosen_look]
+    other = [look.name for look in design.looks][-1]
+    widget.onLookClicked(other)
+    assert design.look_name == other and widget._lookButtons[other].checked
+    assert not widget._lookButtons[design.looks[0].name].checked
