@@ -13,7 +13,7 @@ from IsoSimilarityTFLib import (
     isovalue_similarity,
     memory,
     quantize,
-    similarity,
+    stream,
 )
 from IsoSimilarityTFLib.quantize import Quantization, bin_volume, bins_dtype
 from IsoSimilarityTFLib.source import VolumeSource, is_dask_array
@@ -131,7 +131,7 @@ def test_a_dask_volume_needs_memory_independent_of_its_size(monkeypatch):
 def test_odd_shapes_in_thin_chunk_rows_are_bit_identical(shape, rows, monkeypatch):
     """Chunk rows of a few planes against octree rows of 2, 4, 8 ... planes, with levels both gathered and counted
     row by row (the gathering threshold lowered so that small volumes have both)."""
-    monkeypatch.setattr(similarity, "_counted_row_by_row", lambda cells, n_bins: cells > 4)
+    monkeypatch.setattr(stream, "_counted_row_by_row", lambda cells, n_bins: cells > 4)
     rng = np.random.default_rng(sum(shape) + rows)
     bins = np.sort(rng.integers(0, 40, shape), axis=0).astype(np.uint8)
     chunks = (rows, max(1, shape[1] // 2), shape[2])

@@ -9,8 +9,8 @@ import dask.array as da
 import numpy as np
 import pytest
 
-from IsoSimilarityTFLib import design_transfer_function, isovalue_similarity, quantize, similarity, source
-from IsoSimilarityTFLib.cells import OctreeBuilder, unit_cell_slabs
+from IsoSimilarityTFLib import design_transfer_function, isovalue_similarity, quantize, source, stream
+from IsoSimilarityTFLib.cells import OctreeBuilder, octree_levels, unit_cell_slabs
 
 RULES = list(itertools.product(("inclusive", "strict"), ("thesis", "ma-entezari")))
 
@@ -107,9 +107,9 @@ def test_similarity_in_parts_is_bit_identical(n0, every_chunk_row_a_part, monkey
             np.uint8 if n_bins <= 256 else np.uint16
         )
         crossing, normalization = RULES[case]
-        levels = int(rng.integers(1, len(similarity.octree_levels(tuple(n - 1 for n in shape))) + 1))
+        levels = int(rng.integers(1, len(octree_levels(tuple(n - 1 for n in shape))) + 1))
         threshold = int(rng.choice([0, 4, 1 << 30]))
-        monkeypatch.setattr(similarity, "_counted_row_by_row", lambda cells, n_bins, t=threshold: cells > t)
+        monkeypatch.setattr(stream, "_counted_row_by_row", lambda cells, n_bins, t=threshold: cells > t)
         for options in ({}, {"crossing": crossing, "normalization": normalization, "levels": levels}):
             expected = isovalue_similarity(bins, n_bins, **options)
             chunks = (random_chunks(rng, n0), int(rng.integers(1, shape[1] + 1)), shape[2])

@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 from reference import reference_level_sizes, reference_similarity_matrix
 
-from IsoSimilarityTFLib import isovalue_similarity, octree_levels, similarity, similarity_matrix, unit_cell_intervals
+from IsoSimilarityTFLib import isovalue_similarity, octree_levels, similarity_matrix, stream, unit_cell_intervals
 from IsoSimilarityTFLib.cells import OctreeBuilder, unit_cell_slabs
-from IsoSimilarityTFLib.similarity import joint_interval_histogram, overlap_counts
+from IsoSimilarityTFLib.similarity import overlap_counts
+from IsoSimilarityTFLib.stream import joint_interval_histogram
 
 RULES = list(itertools.product(("inclusive", "strict"), ("thesis", "ma-entezari")))
 
@@ -129,7 +130,7 @@ def test_fast_path_equals_reference_across_slab_boundaries(crossing, normalizati
     shapes = [(13, 6, 7), (16, 5, 4), (9, 17, 3), (30, 3, 3)]
     volumes = [(random_volume(rng, shape, 19, "sorted"), shape) for shape in shapes]
     for cells_per_slab in (1, 20, 50):
-        monkeypatch.setattr(similarity, "_SLAB_CELLS", cells_per_slab)
+        monkeypatch.setattr(stream, "_SLAB_CELLS", cells_per_slab)
         for bins, shape in volumes:
             n_levels = len(octree_levels(tuple(s - 1 for s in shape)))
             for levels in (1, n_levels // 2 + 1, n_levels):
@@ -239,8 +240,8 @@ def test_progress_is_reported_per_level_and_can_abort():
 
 def test_progress_during_the_unit_cell_pass_can_cancel_it(monkeypatch):
     """A long pass over the unit cells reports as it goes, so cancelling does not wait for its end."""
-    monkeypatch.setattr(similarity, "_PROGRESS_CELLS", 100)
-    monkeypatch.setattr(similarity, "_SLAB_CELLS", 100)
+    monkeypatch.setattr(stream, "_PROGRESS_CELLS", 100)
+    monkeypatch.setattr(stream, "_SLAB_CELLS", 100)
     bins = np.random.default_rng(0).integers(0, 16, (30, 11, 11))
     seen = []
 

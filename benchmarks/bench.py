@@ -416,7 +416,7 @@ def _child_floor(cfg: dict) -> dict:
     import numpy as np
 
     from IsoSimilarityTFLib import octree_levels, quantize, similarity_matrix
-    from IsoSimilarityTFLib.similarity import interval_histograms
+    from IsoSimilarityTFLib.stream import interval_histograms
 
     values, _ = _load_volume(cfg)
     bins = quantize(values, 256).bins

@@ -2,8 +2,9 @@
 
 The pipeline, one module per step: :mod:`.source` (the volume, numpy or dask, read in slabs), :mod:`.survey` (one
 pass for the value range's facts), :mod:`.value_range` (the default range's rules: padding and outliers left out),
-:mod:`.quantize` (isovalue bins), :mod:`.cells` (unit cells and octree levels), :mod:`.similarity` (hierarchical
-isovalue similarity, from one stream over the bins whose :mod:`.taps` gather what later steps need),
+:mod:`.quantize` (isovalue bins), :mod:`.cells` (unit cells and octree levels), :mod:`.stream` (one pass over the
+bins for the levels' joint histograms, its :mod:`.taps` gathering what later steps need), :mod:`.similarity`
+(hierarchical isovalue similarity from those tables),
 :mod:`.clustering` (affinity propagation), :mod:`.classes` (ranked classes), :mod:`.tissues` (classes grouped into
 tissues), :mod:`.roles`, :mod:`.look` and :mod:`.gallery` (the looks), :mod:`.transfer_function` (VTK objects and
 Slicer files), tied together by :func:`design_transfer_function`, whose options are the table in :mod:`.options` and

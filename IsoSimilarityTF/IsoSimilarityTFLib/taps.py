@@ -1,6 +1,6 @@
 """What the stream's one pass over the bins gathers besides the similarity's counts: a tap sees every slab.
 
-The similarity pass (:func:`~.similarity.interval_histograms`) hands every slab of bins it reads, in order along
+The stream (:func:`~.stream.interval_histograms`) hands every slab of bins it reads, in order along
 axis 0, to a :class:`SlabTap`, which counts the voxels per bin and keeps the planes later steps measure (the planes
 the background rule samples, the look's preview), so that no later step reads the volume again. A tap knows no
 policy: which planes to keep is its caller's.
