@@ -81,6 +81,11 @@ TARGET_SWITCH_LOOK_S = 0.05
 TARGET_REGROUP_S = 0.1
 # Cells per chunk tried for the floor; the fastest on this machine is the floor.
 FLOOR_CHUNK_CELLS = (1 << 17, 1 << 18, 1 << 19)
+# Targets of issue 25: the whole design (no pictures) within this multiple of its numpy floor; the stages after the
+# pass (clustering, classes, tissues) together at most the pass itself. Today's figures, from the issue, beside them.
+TARGET_DESIGN_FLOOR_MULTIPLE = 2.0
+DESIGN_FLOOR_BEFORE = {"head CT": "8.5x", "brain MRI": "-", "256^3 uint8": "9.2x", "512^3 int16": "2.25x",
+                       "256^3 float32 padded": "-", "MNI152": "23.8x"}  # fmt: skip
 
 STAGES = ("load", "quantize", "similarity", "clustering", "classes", "tissues", "tf", "render")
 PIPELINE_STAGES = ("quantize", "similarity", "clustering", "classes", "tissues", "tf")
@@ -455,6 +460,57 @@ def _child_floor(cfg: dict) -> dict:
     }
 
 
+def design_floor(values: Any, chunk_cells: int) -> Any:
+    """The numpy floor of the whole design (issue 25): one minimum and maximum, the quantization in slabs, the unit
+    cells' joint histogram (:func:`similarity_floor`). Returns that histogram."""
+    from IsoSimilarityTFLib.quantize import bin_volume
+
+    low, high = float(values.min()), float(values.max())
+    return similarity_floor(bin_volume(values, 256, (low, high), (low, high)), chunk_cells)
+
+
+def _child_design_floor(cfg: dict) -> dict:
+    """The whole design (defaults, no pictures) against its numpy floor, interleaved in one process."""
+    import numpy as np
+
+    from IsoSimilarityTFLib import design_transfer_function
+
+    values, spacing = _load_volume(cfg)
+    if cfg.get("padded"):  # float32 CT with a padding block outside the field of view
+        values = values.astype(np.float32)
+        values[:, :, : values.shape[2] // 10] = -3024.0
+
+    def timed(function: Callable, *args: Any) -> float:
+        start = time.perf_counter()
+        function(*args)
+        return time.perf_counter() - start
+
+    chunk = FLOOR_CHUNK_CELLS[1]
+    design_floor(values, chunk)
+    design = design_transfer_function(values, spacing)
+    floor_times, ours_times, stages = [], [], []
+    for _ in range(int(cfg["repeats"])):
+        floor_times.append(timed(design_floor, values, chunk))
+        start = time.perf_counter()
+        design = design_transfer_function(values, spacing)
+        ours_times.append(time.perf_counter() - start)
+        stages.append(design.timings_s)
+    floor, ours = _median(floor_times), _median(ours_times)
+    median_stages = {stage: _median([s[stage] for s in stages]) for stage in stages[0]}
+    after = sum(median_stages[s] for s in ("clustering", "classes", "tissues"))
+    return {
+        "config": cfg,
+        "shape": list(values.shape),
+        "dtype": str(values.dtype),
+        "floor_median_s": floor,
+        "ours_median_s": ours,
+        "multiple": ours / floor,
+        "stages_s": median_stages,
+        "after_pass_over_pass": after / median_stages["similarity"],
+        "loadavg_end": os.getloadavg(),
+    }
+
+
 def _child_reference(cfg: dict) -> dict:
     """Fast similarity against the explicit incidence-matrix reference on one small phantom."""
     import numpy as np
@@ -547,6 +603,7 @@ def _child_main(text: str) -> None:
     children = {
         "reference": _child_reference,
         "floor": _child_floor,
+        "design-floor": _child_design_floor,
         "pipeline": _child_pipeline,
         "out_of_core": _child_out_of_core,
     }
@@ -750,6 +807,16 @@ def configurations(quick: bool, data: Path | None = None, big: bool = False) -> 
         {"kind": "floor", "name": "floor 256^3 uint8", "source": "phantom-uint8", "size": 256, "repeats": 11},
         {"kind": "floor", "name": "floor 512^3 int16, 256 bins", "source": "phantom", "size": 512, "repeats": 7},
     ]
+    design_floor_cases = [
+        {"kind": "design-floor", "name": "head CT", "source": "head-ct", "repeats": 7},
+        {"kind": "design-floor", "name": "brain MRI", "source": "brain-mri", "repeats": 5},
+        {"kind": "design-floor", "name": "256^3 uint8", "source": "phantom-uint8", "size": 256, "repeats": 5},
+        {"kind": "design-floor", "name": "512^3 int16", "source": "phantom", "size": 512, "repeats": 3},
+        {"kind": "design-floor", "name": "256^3 float32 padded", "source": "phantom", "size": 256, "padded": True,
+         "repeats": 5},
+    ]  # fmt: skip
+    if quick:
+        design_floor_cases = design_floor_cases[:3]
     if quick:
         for cfg in floor:
             cfg["repeats"] = 5
@@ -792,6 +859,7 @@ def configurations(quick: bool, data: Path | None = None, big: bool = False) -> 
     return {
         "latency": latency,
         "floor": floor,
+        "design_floor": design_floor_cases,
         "out_of_core": out_of_core,
         "sizes": sizes,
         "real": real,
@@ -1026,6 +1094,55 @@ def build_report(machine: dict, groups: dict[str, list[dict]], quick: bool, wall
     summary["targets"] += [dict(zip(["target", "limit", "measured", "verdict"], v)) for v in verdicts12]
     md.append("\n## Targets of issue 12\n")
     md.append(_table(["target", "limit", "measured", "verdict"], verdicts12))
+    rows25, verdicts25, design_summary = [], [], []
+    for r in groups.get("design_floor", []):
+        name = r["config"]["name"]
+        if "error" in r:
+            rows25.append([name, "-", "-", "-", "-", "-", r["error"]])
+            continue
+        stages = r["stages_s"]
+        rows25.append(
+            [
+                f"{name} ({' x '.join(map(str, r['shape']))} {r['dtype']})",
+                _fmt_s(r["floor_median_s"]),
+                _fmt_s(r["ours_median_s"]),
+                f"{r['multiple']:.1f}x",
+                DESIGN_FLOOR_BEFORE.get(name, "-"),
+                ", ".join(f"{stage} {seconds * 1e3:.0f}" for stage, seconds in stages.items()),
+                f"{r['after_pass_over_pass']:.1f}x",
+            ]
+        )
+        design_summary.append({k: r[k] for k in ("floor_median_s", "ours_median_s", "multiple")} | {"name": name})
+        verdicts25.append(
+            [
+                f"whole design / numpy floor, {name}",
+                f"<= {TARGET_DESIGN_FLOOR_MULTIPLE}x",
+                f"{r['multiple']:.1f}x",
+                "PASS" if r["multiple"] <= TARGET_DESIGN_FLOOR_MULTIPLE else "FAIL",
+            ]
+        )
+        verdicts25.append(
+            [
+                f"stages after the pass / the pass, {name}",
+                "<= 1.0x",
+                f"{r['after_pass_over_pass']:.1f}x",
+                "PASS" if r["after_pass_over_pass"] <= 1.0 else "FAIL",
+            ]
+        )
+    summary["design_floor"] = design_summary
+    summary["targets"] += [dict(zip(["target", "limit", "measured", "verdict"], v)) for v in verdicts25]
+    if rows25:
+        md.append("\n\n## Targets of issue 25 (the whole design against its numpy floor)\n")
+        md.append(
+            "The floor: one minimum and maximum, the quantization, the unit cells' joint histogram, in numpy, timed "
+            "interleaved with the whole design (defaults, no pictures) in one process. Stages in ms; the last "
+            "column is clustering + classes + tissues over the similarity pass.\n\n"
+        )
+        md.append(
+            _table(["volume", "floor", "design", "multiple", "before (issue)", "stages (ms)", "after / pass"], rows25)
+        )
+        md.append("\n\n")
+        md.append(_table(["target", "limit", "measured", "verdict"], verdicts25))
     verdicts24 = _looks_verdicts(everything)
     summary["targets"] += [dict(zip(["target", "limit", "measured", "verdict"], v)) for v in verdicts24]
     md.append("\n\n## Targets of issue 24 (the gallery of looks)\n")
@@ -1368,7 +1485,7 @@ def main(argv: list[str] | None = None) -> int:
             result = run_latency(cfg, timeout) if cfg["kind"] == "latency" else run_child(cfg, timeout)
             if "error" in result:
                 log(f"    ERROR: {result['error']}")
-            elif cfg["kind"] == "floor":
+            elif cfg["kind"] in ("floor", "design-floor"):
                 log(
                     f"    floor {_fmt_s(result['floor_median_s'])}, ours {_fmt_s(result['ours_median_s'])}: "
                     f"{result['multiple']:.2f}x"
