@@ -206,6 +206,8 @@ def test_stale_job_folders_are_removed_and_nothing_else(tmp_path):
         assert os.path.lexists(kept), kept
     assert link.is_symlink() and (target / worker.VALUES_FILE).exists()
     assert (foreign / "data.txt").exists()
+    # The link is never judged a job's folder, whatever it leads to (rmtree's own refusal is a second guard).
+    assert not worker._stale(str(link)) and worker._stale(str(target))
 
 
 def test_a_new_job_sweeps_its_temporary_folder(tmp_path):
