@@ -8,7 +8,7 @@ from test_look import make_classes
 
 from IsoSimilarityTFLib import design_transfer_function
 from IsoSimilarityTFLib.design import TransferFunctionDesign
-from IsoSimilarityTFLib.gallery import LOOK_NAMES, LookContext, check_look, make_look
+from IsoSimilarityTFLib.gallery import LOOK_NAMES, LookContext, check_look, class_shares, make_look
 from IsoSimilarityTFLib.roles import RULES, class_roles, dense_classes
 from IsoSimilarityTFLib.visibility import Preview
 from isosimtf.phantom import head_phantom
@@ -28,6 +28,21 @@ def test_a_class_within_the_fog_separation_of_the_background_is_fog(gap, role):
     assert roles_of([0.0, gap, 40.0], [5000, 100, 3000])[1] == role
     # and below it: a cropped CT whose largest class (the background) is soft tissue, with lungs far below
     assert roles_of([20.0, 20.0 - gap, 60.0], [5000, 100, 3000])[1] == role
+
+
+@pytest.mark.parametrize("gap, role", [(RULES.fog_separation - 0.01, "fog"), (RULES.fog_separation + 0.01, "bulk")])
+def test_a_low_class_is_fog_only_when_its_tissue_lies_at_the_background_too(gap, role):
+    # A skull-stripped brain (the background all zeros): the outer cortex's class, 2 noise widths above the
+    # background and not touching it, belongs to the brain's tissue, whose largest class lies `gap` noise widths up.
+    classes = make_classes([50_000, 300, 3000], contact=[1.0, 0.1, 0.0])
+    assert class_roles(classes, np.array([0, 1, 1]), np.array([0.0, 2.0, gap]), 1.0)[1] == role
+
+
+@pytest.mark.parametrize("contact, role", [(RULES.rim_contact - 0.01, "bulk"), (RULES.rim_contact + 0.01, "fog")])
+def test_a_low_class_mostly_touching_the_background_is_fog_in_any_tissue(contact, role):
+    # Noise scattered in the air touches it: fog, even when the intensity model put it in a tissue apart.
+    classes = make_classes([50_000, 300, 3000], contact=[1.0, contact, 0.0])
+    assert class_roles(classes, np.array([0, 1, 1]), np.array([0.0, 2.0, 20.0]), 1.0)[1] == role
 
 
 @pytest.mark.parametrize("contact, role", [(RULES.rim_contact - 0.01, "bulk"), (RULES.rim_contact + 0.01, "rim")])
@@ -55,6 +70,26 @@ def test_dense_is_decided_per_class_inside_a_tissue():
     classes = make_classes([50_000, 8_000, 1_000, 600])
     roles = class_roles(classes, np.array([0, 1, 1, 2]), np.array([0.0, 20.0, 20.0 + 5.0, 40.0]), 1.0)
     assert roles == ["background", "bulk", "dense", "dense"]
+
+
+@pytest.mark.parametrize("gap, dense", [(RULES.dense_separation - 0.01, False), (RULES.dense_separation + 0.01, True)])
+def test_dense_is_measured_from_the_largest_class_above_the_largest_tissues_mean(gap, dense):
+    # An export whose air was set to 0: the lowest tissue is mostly the blur of the skull (three classes spread low,
+    # the most voxels, mean bin 10), the brain is the largest class (bin 30): the skull is dense only `gap` noise
+    # widths above the brain, and the brain itself is not dense (20 noise widths above the lowest tissue's mean).
+    classes = make_classes([50_000, 2000, 2000, 2000, 3000, 500])
+    means = np.array([0.0, 5.0, 10.0, 15.0, 30.0, 30.0 + gap])
+    roles = class_roles(classes, np.array([0, 1, 1, 1, 2, 2]), means, 1.0)
+    assert roles[4] == "bulk"
+    assert (roles[5] == "dense") is dense
+
+
+@pytest.mark.parametrize("gap, dense", [(RULES.dense_separation - 0.01, False), (RULES.dense_separation + 0.01, True)])
+def test_dense_is_measured_from_the_largest_tissues_mean_above_the_largest_class(gap, dense):
+    # The largest tissue's mean (two classes, 20.0) lies above its largest class (bin 18): measured from the mean.
+    classes = make_classes([50_000, 3000, 3000, 300])
+    means = np.array([0.0, 18.0, 22.0, 20.0 + gap])
+    assert (class_roles(classes, np.array([0, 1, 1, 2]), means, 1.0)[3] == "dense") is dense
 
 
 def test_a_dense_class_stays_dense_when_it_touches_the_background():
@@ -177,6 +212,70 @@ def test_check_look_measures_the_light_kept_on_both_sides():
     assert check_look(context, look) == []
     veiled = dataclasses.replace(look, visible=[False, True, True], opacities=[0.0, 0.3, look.opacities[2]])
     assert any("dense keeps" in failure for failure in check_look(context, veiled))
+
+
+def _with_share(context, look, target, scaled, share):
+    """``look`` with the opacities of the ``scaled`` classes multiplied by the factor that makes the ``target``
+    classes give ``share`` of the picture (bisection in log factor on the fast measure)."""
+    opacities = np.asarray(look.opacities, dtype=float)
+
+    def target_share(log_factor):
+        trial = np.where(scaled, opacities * np.exp(log_factor), opacities).clip(0.0, 1.0)
+        return float(class_shares(context, trial, look.visible)[target].sum()), trial
+
+    low, high = -12.0, 12.0  # the target's share falls as the others grow
+    for _ in range(60):
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if target_share(middle)[0] > share else (low, middle)
+    measured, trial = target_share(0.5 * (low + high))
+    assert measured == pytest.approx(share, abs=0.005)
+    return dataclasses.replace(look, opacities=[float(a) for a in trial])
+
+
+@pytest.mark.parametrize("margin, kept", [(-0.02, False), (0.02, True)])
+def test_the_dense_parts_promise_is_the_dense_share(margin, kept):
+    context = shell_context()
+    look = make_look("dense-parts", context)
+    dense, bulk = context.of_role("dense"), context.of_role("bulk")
+    assert check_look(context, look) == []
+    assert float(look.class_shares[dense].sum()) >= RULES.dense_share
+    moved = _with_share(context, look, dense, bulk, RULES.dense_share + margin)
+    broken = [failure for failure in check_look(context, moved) if "dense gives" in failure]
+    assert (broken == []) is kept
+
+
+def twigs_context():
+    """Air (bin 0), a large core (bins 25-39, bulk) that takes the picture of thin twigs (bins 5-24, rim: rods one
+    voxel thick touching the air) beside it, as a plant's pot beside its branches."""
+    n = 40
+    z, y, x = np.indices((n, n, n)) - (n - 1) / 2
+    bins = np.where(np.sqrt(x**2 + y**2 + z**2) < 9, 35, 0).astype(np.intp)
+    for k in (4, 12, 28, 36):  # four twigs, far from the core
+        bins[k, 3, 2:38] = 15
+    labels = np.select([np.arange(40) < 5, np.arange(40) < 25], [0, 1], 2)
+    voxels = np.bincount(labels[bins.ravel()], minlength=3)
+    classes = make_classes(voxels.tolist(), contact=[1.0, 1.0, 0.1])
+    class_bins = np.array([0.0, 15.0, 35.0])
+    return LookContext.build(
+        classes=classes, tissue_of_class=np.arange(3), class_values=class_bins, class_bins=class_bins,
+        labels=labels, noise_sd=1.0, preview=Preview(bins, (5.0, 5.0, 5.0), 40), kind="mr",
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("margin, kept", [(-0.02, False), (0.02, True)])
+def test_the_thin_structures_promise_is_the_thin_share(margin, kept):
+    context = twigs_context()
+    assert context.roles == ["background", "rim", "bulk"]
+    rim, bulk = context.of_role("rim"), context.of_role("bulk")
+    look = make_look("thin-structures", context)
+    assert check_look(context, look) == []
+    assert float(look.class_shares[rim].sum()) >= RULES.thin_share
+    # The default look under it (the core a surface, the twigs at the thin opacity) leaves them a sliver.
+    uncleared = dataclasses.replace(look, opacities=[0.0, look.opacities[1], RULES.opacity_high])
+    assert any("rim gives" in failure for failure in check_look(context, uncleared))
+    moved = _with_share(context, look, rim, bulk, RULES.thin_share + margin)
+    broken = [failure for failure in check_look(context, moved) if "rim gives" in failure]
+    assert (broken == []) is kept
 
 
 def test_check_look_finds_fog_shown_and_the_densest_tissue_hidden_and_a_falling_ramp():

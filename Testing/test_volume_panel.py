@@ -190,4 +190,40 @@ def test_the_look_panel_measures_shares_and_survives_a_failing_volume(capsys, mo
     for row in case["looks"]:
         assert sum(row["shares"].values()) == pytest.approx(1.0)
         assert 0.0 <= row["scanned_for"] <= 1.0 and row["fog"] == pytest.approx(0.0, abs=0.05)
+        assert row["oracle"] == [], row["look"]  # every look keeps its promise (check_look)
     assert any(row["first_click"] for row in case["looks"])
+
+
+def _measured(key):
+    look_panel = _load("look_panel")
+    volume = next(v for v in (*panel.REFERENCES, *panel.PANEL) if v.key == key)
+    if not volume.available():
+        pytest.skip(f"{key} is not on this machine")
+    return look_panel.measure(volume)
+
+
+def _first_click(case):
+    return next(row for row in case["looks"] if row["first_click"])
+
+
+@pytest.mark.parametrize("original, clipped", [("phantom-hu", "phantom-clipped"), ("head-ct-hu", "head-ct-clipped")])
+def test_hu_clipped_at_0_gives_nearly_the_first_click_of_its_original(original, clipped):
+    # The clipped storage turns everything below 94 HU into background: the original's first click must not keep the
+    # soft tissue as a veil the clipped one cannot show (0.29 of the picture apart when the dense parts were promised
+    # half of it).
+    shares = [_first_click(_measured(key))["scanned_for"] for key in (original, clipped)]
+    assert abs(shares[0] - shares[1]) <= 0.15, shares
+
+
+@pytest.mark.parametrize(
+    "key, at_least",
+    [
+        ("plant-ct", 0.2),  # the twigs: 0.075 at best when the thin-structures look left the pot as it was
+        ("ct-head-8bit-oblique", 0.85),  # the skull: 0.43 at best when the dense classes started at the scalp's blur
+    ],
+)
+def test_the_gallery_offers_a_look_showing_what_was_scanned_for(key, at_least):
+    case = _measured(key)
+    best = max(case["looks"], key=lambda row: row["scanned_for"])
+    assert best["scanned_for"] >= at_least, (best["look"], best["scanned_for"])
+    assert all(row["oracle"] in ([], None) for row in case["looks"])

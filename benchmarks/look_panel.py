@@ -15,8 +15,9 @@ axis views); a bin's visibility goes to the labels of the voxels in it, in propo
     share(label) = sum_b vis[b] * frac_label(b) / sum_b vis[b],  frac_label(b) = voxels of label in b / voxels in b
 
 with the bins of the design (its ``n_bins`` over its ``value_range``). "scanned for" sums the volume's ``shown_for``
-labels, "fog" is its ``fog`` label. On the real volumes the labels are value bands read from the data's README, not
-ground truth; the phantom-derived and synthetic volumes have their truth.
+labels, "fog" is its ``fog`` label. "oracle" is what ``design.check_look`` finds each look failing of its promise,
+measured with the library's independent ray caster (empty: it keeps it). On the real volumes the labels are value
+bands read from the data's README, not ground truth; the phantom-derived and synthetic volumes have their truth.
 
 Invariance: for each group of ``VARIANT_GROUPS`` (one data set in several storages, or at several voxel sizes), the
 largest difference between the variants' shares, per look.
@@ -80,12 +81,12 @@ def picture_shares(design: Any, fractions: np.ndarray | None) -> tuple[np.ndarra
     return opacity, shares
 
 
-def _row(name: str, shares, names, case: PanelVolume, seconds: float, first_click: bool = False) -> dict:
+def _row(name: str, shares, names, case: PanelVolume, seconds: float, first_click: bool = False, oracle=None) -> dict:
     by_label = None if shares is None else {n: float(s) for n, s in zip(names, shares)}
     scanned = sum(by_label[n] for n in case.shown_for) if by_label is not None and case.shown_for else None
     fog = by_label[case.fog] if by_label is not None and case.fog else None
     return {"look": name, "first_click": first_click, "shares": by_label, "scanned_for": scanned, "fog": fog,
-            "seconds": round(seconds, 3)}  # fmt: skip
+            "seconds": round(seconds, 3), "oracle": oracle}  # fmt: skip
 
 
 def measure(case: PanelVolume) -> dict:
@@ -106,7 +107,8 @@ def measure(case: PanelVolume) -> dict:
         switched = time.perf_counter()
         design.use_look(look.name)
         opacity, shares = picture_shares(design, fractions)
-        rows.append(_row(look.name, shares, names, case, time.perf_counter() - switched))
+        seconds = time.perf_counter() - switched
+        rows.append(_row(look.name, shares, names, case, seconds, oracle=design.check_look(look.name)))
         rows[-1]["first_click"] = bool(np.array_equal(opacity, first_opacity))
     if len(rows) > 1 and any(r["first_click"] for r in rows[1:]):
         rows = rows[1:]  # the first click is one of the looks: keep that one, marked, with the design's time
@@ -179,6 +181,12 @@ def _pct(value: float | None) -> str:
     return "-" if value is None else f"{100 * value:.1f}%"
 
 
+def _oracle(failures: list | None) -> str:
+    if failures is None:
+        return "-"
+    return "kept" if not failures else f"**{len(failures)} broken**"
+
+
 def _by_label(shares: dict | None) -> str:
     if shares is None:
         return "-"
@@ -195,15 +203,16 @@ def markdown(document: dict) -> str:
         "scanned-for labels and the fog label give. Labels are the truth of the synthetic and phantom-derived "
         "volumes, voxels of at least 300 HU on the head CT, and value bands read from `../shared/data/README.md` on "
         "the real volumes (a reading, not ground truth). time: the design (on the first click's row), switching "
-        "to the look and measuring it (other rows). Last column: every label's share, in %. The best look of each "
-        "volume (largest scanned-for share) is in bold.",
+        "to the look and measuring it (other rows). oracle: whether the look keeps its promise (`check_look`, an "
+        "independent ray caster). Last column: every label's share, in %. The best look of each volume (largest "
+        "scanned-for share) is in bold.",
         "",
-        "| volume | look | scanned for | share of scanned-for | share of fog | time (s) | shares by label |",
-        "|---|---|---|---:|---:|---:|---|",
+        "| volume | look | scanned for | share of scanned-for | share of fog | time (s) | oracle | shares by label |",
+        "|---|---|---|---:|---:|---:|---|---|",
     ]
     for key, case in document["volumes"].items():
         if "error" in case:
-            lines.append(f"| {key} | **failed**: {case['error']} | | | | | |")
+            lines.append(f"| {key} | **failed**: {case['error']} | | | | | | |")
             continue
         for row in case["looks"]:
             look = row["look"] + (" (first click)" if row["first_click"] and row["look"] != FIRST_CLICK else "")
@@ -211,8 +220,19 @@ def markdown(document: dict) -> str:
                 look = f"**{look}**"
             lines.append(
                 f"| {key} | {look} | {', '.join(case['shown_for']) or '-'} | {_pct(row['scanned_for'])} | "
-                f"{_pct(row['fog']) if case['fog'] else '-'} | {row['seconds']:.2f} | {_by_label(row['shares'])} |"
+                f"{_pct(row['fog']) if case['fog'] else '-'} | {row['seconds']:.2f} | {_oracle(row.get('oracle'))} | "
+                f"{_by_label(row['shares'])} |"
             )
+    broken = [
+        f"{key} {row['look']}: {'; '.join(row['oracle'])}"
+        for key, case in document["volumes"].items()
+        if "error" not in case
+        for row in case["looks"]
+        if row.get("oracle")
+    ]
+    checked = sum(row.get("oracle") is not None for c in document["volumes"].values() for row in c.get("looks", ()))
+    lines += ["", f"Oracle (`check_look`): {checked - len(broken)} of {checked} looks keep their promise."]
+    lines += [f"- {line}" for line in broken]
     best = [(k, c) for k, c in document["volumes"].items() if "error" not in c and c["best_look"] is not None]
     if any(len(c["looks"]) > 1 for _, c in best):
         lines += ["", "Best look per volume (largest scanned-for share):", ""]

@@ -9,12 +9,16 @@ switching recomputes nothing. Each look decides from the class roles (:mod:`.rol
 name                what it shows                                            offered when
 =================== ======================================================== ======================================
 ``dense-parts``     the dense parts inside, the bulk around them cleared     a class is ``dense`` (always on CT)
-                    (bone of a CT, the parts of an engine)
+                    until they give :attr:`.LookRules.dense_share` of
+                    the picture (bone of a CT, the parts of an engine)
 ``outer-surface``   the tissue met first as a surface (the skin of a head,   always
                     a brain's cortex: MR-Default's look)
 ``see-through``     the dense parts look, with the bulk around them kept at   a class is ``dense`` and another
                     :attr:`.LookRules.see_through` of the picture            ``bulk``
-``thin-structures`` the rim shown as structure: small vessels, twigs         a real share of the voxels is ``rim``
+``thin-structures`` the rim shown as structure: small vessels, twigs; the    a real share of the voxels is ``rim``
+                    rest cleared until the rim gives
+                    :attr:`.LookRules.thin_share` of the picture (a
+                    plant's twigs, not its pot)
 ``all-tissues``     every tissue, on the presets' monotone ramp              two tissues or more
 ``classes``         one palette colour per class (the thesis)                two classes or more
 =================== ======================================================== ======================================
@@ -36,6 +40,7 @@ from .classes import PALETTE, IsovalueClass
 from .look import BACKGROUND_GREY, bin_opacity_of, default_look
 from .options import LOOK_NAMES
 from .roles import RULES, LookRules, class_roles, tissue_mean_bins
+from .thumbnails import ray_visibility  # check_look's independent ray caster: an oracle, not the fast path
 from .visibility import Preview, visibility_histogram
 
 # The visibility step stops within this of the light it aims to keep (its last round's measure, float32 sums).
@@ -282,25 +287,43 @@ def _dense_parts(context: LookContext) -> Made:
     if context.preview is None or not dense.any():
         return (colors, opacities, visible) if context.kind == "ct" else None
     opacities = np.asarray(opacities, dtype=np.float64)
-    visible = np.array(visible) | dense
-    alone = _light(context, opacities, dense)[dense].sum()
+    cleared = _cleared_around(context, dense, opacities, visible, context.rules.dense_share, context.rules.seen)
+    if cleared is None:  # the dense classes are not in the preview
+        return (colors, list(opacities), list(np.asarray(visible) | dense)) if context.kind == "ct" else None
+    return (colors, *cleared)
+
+
+def _cleared_around(
+    context: LookContext,
+    target: np.ndarray,
+    opacities: np.ndarray,
+    visible: Sequence[bool],
+    share_aimed: float,
+    kept_aimed: float,
+) -> Optional[tuple[list[float], list[bool]]]:
+    """The ``target`` classes (a ``(n_classes,)`` mask) shown, every other shown class made clearer until the target
+    keeps ``kept_aimed`` of its own light (0: not asked) and gives ``share_aimed`` of the picture (Ma & Entezari's
+    visibility loop, turned round: the target is at the top already). None when the target sends no light in the
+    preview."""
+    opacities = np.asarray(opacities, dtype=np.float64)
+    visible = np.asarray(visible, dtype=bool) | target
+    alone = _light(context, opacities, target)[target].sum()
     if alone <= 0:
-        return (colors, list(opacities), list(visible)) if context.kind == "ct" else None  # not in the preview
-    others = visible & ~dense
+        return None
+    others = visible & ~target
     for _ in range(_CLEARING_ROUNDS):
         light = _light(context, opacities, visible)
-        kept, share = light[dense].sum() / alone, light[dense].sum() / max(light.sum(), 1e-300)
-        if (kept >= context.rules.seen and share >= context.rules.dense_share) or not others.any():
+        kept, share = light[target].sum() / alone, light[target].sum() / max(light.sum(), 1e-300)
+        if (kept >= kept_aimed and share >= share_aimed) or not others.any():
             break
         # What lies in front passes about T of the light, T ** s once its opacity is scaled by s; a thin haze's own
         # light scales about as s.
-        aim = context.rules.dense_share + _SHARE_MARGIN  # the linear estimate lands on either side of it
-        factor = min(
-            np.log(context.rules.seen) / np.log(min(max(kept, 1e-12), context.rules.seen)),
-            (share / max(1.0 - share, 1e-12)) * (1.0 - aim) / aim,
-        )
+        aim = min(share_aimed + _SHARE_MARGIN, 1.0 - 1e-6)  # the linear estimate lands on either side of it
+        factor = (share / max(1.0 - share, 1e-12)) * (1.0 - aim) / aim
+        if kept_aimed > 0:
+            factor = min(factor, np.log(kept_aimed) / np.log(min(max(kept, 1e-12), kept_aimed)))
         opacities = np.where(others, opacities * min(factor, 1.0), opacities)
-    return colors, list(opacities), list(visible)
+    return list(opacities), list(visible)
 
 
 def _made(context: LookContext, name: str) -> Made:
@@ -360,6 +383,10 @@ def _see_through(context: LookContext) -> Made:
 
 
 def _thin_structures(context: LookContext) -> Made:
+    """The rim as structure (from ``rules.thin_opacity`` at its lowest class up to the densest shown opacity, by
+    intensity) over the default look, everything else made clearer until the rim gives ``rules.thin_share`` of the
+    picture (:func:`_cleared_around`): twigs are thin and sparse, and a pot left as the default look has it takes
+    the picture of them."""
     rim = context.of_role("rim")
     voxels = np.array([c.voxels for c in context.classes], dtype=np.float64)
     foreground = ~context.of_role("background", "fog")
@@ -374,6 +401,10 @@ def _thin_structures(context: LookContext) -> Made:
     rim_ids = np.flatnonzero(rim)[order]
     opacities[rim_ids] = np.maximum(opacities[rim_ids], ramp)
     visible = np.array(visible) | rim
+    if context.preview is not None:
+        cleared = _cleared_around(context, rim, opacities, visible, context.rules.thin_share, 0.0)
+        if cleared is not None:
+            return (colors, *cleared)
     return colors, list(opacities), list(visible)
 
 
@@ -446,7 +477,7 @@ _DESCRIPTIONS: dict[str, Callable[[LookRules], tuple[str, str, dict, dict, bool]
     "thin-structures": lambda r: (
         "Thin structures",
         "partial volume shown as structure: small vessels, branches",
-        {"rim": (0.05, 1.0)},
+        {"rim": (r.thin_share, 1.0)},
         {},
         False,
     ),
@@ -461,8 +492,6 @@ def check_look(context: LookContext, look: GalleryLook) -> list[str]:
     Checked: every promised share (:attr:`GalleryLook.promise`); opacity rising with intensity among the shown
     classes where promised; fog and background never shown; the densest real tissue shown.
     """
-    from .thumbnails import ray_visibility  # the independent ray caster: an oracle, not the fast path
-
     failures = []
     visible = np.asarray(look.visible, dtype=bool)
     roles = np.array(context.roles, dtype=object)

@@ -7,11 +7,19 @@ Roles, in the order they are decided (the first that applies):
 
 - ``"background"``: the background class (the thesis' rule: the largest class; see :mod:`.classes`).
 - ``"fog"``: noise in the background: the class's mean bin lies within :attr:`LookRules.fog_separation` noise
-  widths of the background's, either side (a micro-CT's noisy air, the haze of an MRI). No look shows it.
-- ``"dense"``: a class whose mean lies :attr:`LookRules.dense_separation` noise widths above the mean of the
-  largest tissue, in a real tissue: bone or contrast in soft tissue, the parts inside a housing, the core of a
-  vessel, a bright lesion. Decided per class: where the intensity model puts trabecular bone in one tissue with the
-  soft tissue (its histogram has no valley between them), the bone's classes are still dense.
+  widths of the background's, either side (a micro-CT's noisy air, the haze of an MRI), and so does the largest
+  class of its tissue (the tissue *is* at the background's intensity: noisy air, haze), or most of its voxels touch
+  the background (:attr:`LookRules.rim_contact`: noise scattered in the air). A low class of a tissue whose largest
+  class stands apart from the background, which does not touch it, is that tissue's darker part or partial volume
+  (the outer cortex of a skull-stripped brain), not noise. No look shows fog.
+- ``"dense"``: a class whose mean lies :attr:`LookRules.dense_separation` noise widths above the *main material*,
+  in a real tissue: bone or contrast in soft tissue, the parts inside a housing, the core of a vessel, a bright
+  lesion. The main material is placed by the larger of two estimates: the mean of the largest tissue, and the mean
+  of the largest class (affinity propagation gives the peak of a material's histogram a class of its own; a tissue's
+  mean follows its partial-volume tail down: in an export whose air was set to 0, the lowest tissue is mostly the
+  blur of the skull, and its mean lies far below the brain). Decided per class: where the intensity model puts
+  trabecular bone in one tissue with the soft tissue (its histogram has no valley between them), the bone's classes
+  are still dense.
 - ``"rim"``: most of its voxels touch the background (:attr:`LookRules.rim_contact`): the partial-volume skin of
   an object, or a structure only a voxel or two thick (a small vessel, a twig), which is all skin. Whether the rim
   *is* the structure or hides it, the data cannot say: one look shows it, another clears it.
@@ -37,7 +45,9 @@ class LookRules:
         real_share: a tissue holding at least this share of the non-background voxels is a real structure, not a
             few stray voxels (which never decide what is dense, nor become the most opaque thing in view).
         fog_separation: a class whose mean lies within this many noise widths (of the intensity model, in bins)
-            of the background's mean is noise in the background: two Gaussians 4 sd apart overlap by under 2.5 %.
+            of the background's mean is at the background's intensity, as noise in it would be: two Gaussians 4 sd
+            apart overlap by under 2.5 % (fog when its tissue's largest class is there too, or it touches the
+            background: see the module notes).
         dense_separation: a real tissue this many noise widths above another is a different, denser material (bone
             over soft tissue), not a brighter shade of the same one (white over grey matter): it decides the dense
             classes, a CT's dense tail and which tissues a feature is seen through.
@@ -48,11 +58,15 @@ class LookRules:
         white_share: the ramp's white end is kept for a densest tissue holding at most this share of the largest
             one's voxels (bone, contrast); a large bright tissue (white matter) ends at ivory, or the headlight washes
             it out.
-        rim_contact: a class more than this share of whose voxels touch the background lies on its fringe.
+        rim_contact: a class more than this share of whose voxels touch the background lies on its fringe: its rim,
+            or, at the background's intensity, noise scattered in it (fog).
         seen: the share of its own light (rendered alone) that a structure a look shows through others must keep:
             what the eye reads as "seen through a veil" rather than "behind it".
         dense_share: the *dense parts* look promises that the dense classes give at least this share of the picture:
-            they are what it shows, whatever is left of the bulk around them.
+            they are what it shows; what is left of the bulk around them is a context taking at most half the
+            least share the *see-through* look keeps it at (``1 - see_through[0] / 2``), so that the two looks are
+            two pictures, and a soft tissue that one storage keeps and another makes background (HU clipped at
+            0) changes the picture little.
         surface_share: the *outer surface* look promises that the tissue met first gives at least this share.
         see_through: the *see-through* look keeps the enclosing bulk at this share of the picture, ``(low, high)``:
             enough to place the parts inside, little enough to see them.
@@ -61,6 +75,10 @@ class LookRules:
             thick, as the small vessels of an angiogram.
         thin_foreground: ... and the objects fill at most this share of the volume: the vessel trees exported with
             95-99 % zeros that a first click must show whole (not a head whose soft tissue was clipped away).
+        thin_share: the *thin structures* look promises that the rim gives at least this share of the picture, the
+            rest made clearer until it does: the thin structures are what it shows, more than anything around them
+            (a plant's pot, which otherwise takes the picture of its twigs); not more, since the rim is also the
+            skin of the thicker structures the look keeps (a vessel tree's larger vessels, a trunk).
         thin_opacity: opacity per unit distance of the lowest rim class in the *thin structures* look: a structure
             one voxel thick (a voxel is about one unit distance, see :attr:`.visibility.Preview.unit_distance`)
             must stop half the light to be seen at all.
@@ -76,11 +94,12 @@ class LookRules:
     white_share: float = 1 / 3
     rim_contact: float = 0.5
     seen: float = 0.8
-    dense_share: float = 0.5
+    dense_share: float = 0.9
     surface_share: float = 0.5
     see_through: tuple[float, float] = (0.2, 0.4)
     thin_rim_share: float = 0.5
     thin_foreground: float = 0.05
+    thin_share: float = 0.5
     thin_opacity: float = 0.5
     opacity_low: float = 0.02
     opacity_high: float = 0.5
@@ -113,11 +132,15 @@ def class_roles(
     background = next((c.id for c in classes if c.background), None)
     background_bin = class_bins[background] if background is not None else -np.inf
     dense = set(dense_classes(classes, tissue_of_class, class_bins, noise_sd, rules))
+    voxels = np.array([c.voxels for c in classes], dtype=np.float64)
+    near = np.abs(class_bins - background_bin) < rules.fog_separation * noise_sd
     roles = []
     for c in classes:
+        members = np.flatnonzero(tissue_of_class == tissue_of_class[c.id])
+        tissue_near = near[members[int(np.argmax(voxels[members]))]]  # where its tissue's largest class lies
         if c.background:
             roles.append("background")
-        elif abs(class_bins[c.id] - background_bin) < rules.fog_separation * noise_sd:
+        elif near[c.id] and (tissue_near or c.background_contact > rules.rim_contact):
             roles.append("fog")
         elif c.id in dense:
             roles.append("dense")
@@ -135,8 +158,8 @@ def dense_classes(
     noise_sd: float,
     rules: LookRules = RULES,
 ) -> list[int]:
-    """Ids of the classes of real tissues whose mean lies ``rules.dense_separation`` noise widths above the mean of
-    the largest tissue (the background left out), ascending."""
+    """Ids of the classes of real tissues whose mean lies ``rules.dense_separation`` noise widths above the main
+    material (:func:`main_material_bin`; the background left out), ascending."""
     voxels = np.array([c.voxels for c in classes], dtype=np.float64)
     foreground = np.array([not c.background for c in classes])
     n_tissues = int(tissue_of_class.max()) + 1 if tissue_of_class.size else 0
@@ -145,10 +168,25 @@ def dense_classes(
     total = tissue_voxels.sum()
     if total <= 0:
         return []
-    largest = int(np.argmax(tissue_voxels))
     real = tissue_voxels[tissue_of_class] >= rules.real_share * total
-    above = class_bins >= tissue_bin[largest] + rules.dense_separation * noise_sd
+    main = main_material_bin(voxels * foreground, tissue_voxels, tissue_bin, class_bins)
+    above = class_bins >= main + rules.dense_separation * noise_sd
     return [int(c) for c in np.flatnonzero(real & above & foreground)]
+
+
+def main_material_bin(
+    class_voxels: np.ndarray, tissue_voxels: np.ndarray, tissue_bin: np.ndarray, class_bins: np.ndarray
+) -> float:
+    """Where the material most of the foreground is made of lies, in bins: the larger of the mean of the largest
+    tissue and the mean of the largest class (see the module notes; the background's voxels counted as 0).
+
+    Args:
+        class_voxels: ``(n_classes,)`` voxels per class, 0 for the background. tissue_voxels: ``(n_tissues,)`` the
+            same per tissue. tissue_bin: ``(n_tissues,)`` mean bin per tissue. class_bins: ``(n_classes,)``.
+    """
+    largest_tissue = float(tissue_bin[int(np.argmax(tissue_voxels))])
+    largest_class = float(class_bins[int(np.argmax(class_voxels))])
+    return max(largest_tissue, largest_class)
 
 
 def tissue_mean_bins(
