@@ -99,3 +99,19 @@ def test_the_api_leaves_padding_out_as_the_command_line_and_the_panel_do() -> No
     given = design_transfer_function(padded, n_bins=64, value_range=(-3024, float(ct.max())))
     assert given.value_range == (-3024.0, float(ct.max())) and given.range_warning() is None
     assert design_transfer_function(ct, n_bins=64).range_warning() is None
+
+
+@pytest.mark.parametrize(("share", "left_out"), [(0.49, True), (0.51, False)])
+def test_a_fill_holding_most_of_the_volume_is_a_masked_exports_background_not_padding(share, left_out):
+    """Padding is left out up to PADDING_MAX_FRACTION of the voxels; a vessel tree exported with 95-99 % zeros keeps
+    its zeros in the range (so its faint edges stay apart from them in bins)."""
+    from IsoSimilarityTFLib.value_range import PADDING_MAX_FRACTION
+
+    assert PADDING_MAX_FRACTION == 0.5
+    values = np.random.default_rng(0).normal(300.0, 40.0, 100_000)
+    filled = int(round(share * values.size))
+    values[:filled] = -3024.0
+    volume = values.reshape(40, 50, 50)
+    robust = robust_value_range(volume)
+    assert robust.excludes is left_out
+    assert robust.value_range[0] == (float(values[filled:].min()) if left_out else -3024.0)

@@ -7,10 +7,13 @@ both and leaves them out of the default range; their voxels still count, in the 
 :func:`~.design.design_transfer_function` applies this rule (:func:`robust_value_range`) whoever calls it (Python,
 the command line, the Slicer module), and an explicit range (``value_range``, ``--range``) overrides it.
 
-- **Padding**: the volume's lowest (or highest) value holds at least :data:`PADDING_FRACTION` of the voxels and lies
-  more than :data:`PADDING_GAP` of the value span away from the next value present, and the other values are a
-  continuous scan (at least :data:`MIN_DISTINCT` distinct values), not a label map. MRI background at 0, with noise
-  from 7 up, and CT air clamped at -1024 are not padding: their gap is small.
+- **Padding**: the volume's lowest (or highest) value holds at least :data:`PADDING_FRACTION` of the voxels (and
+  at most :data:`PADDING_MAX_FRACTION`) and lies more than :data:`PADDING_GAP` of the value span away from the next
+  value present, and the other values are a continuous scan (at least :data:`MIN_DISTINCT` distinct values), not a
+  label map. A fill holding most of the volume is the background of a masked export (a vessel tree exported with
+  95-99 % zeros), not padding around a scan: left in the range, it keeps its distance from the object's faint edges
+  in bins, which the look measures (left out, it would share the first bin with them and take them for noise). MRI
+  background at 0, with noise from 7 up, and CT air clamped at -1024 are not padding: their gap is small.
 - **Outliers**: values more than :data:`OUTLIER_SPREADS` times the spread of the central values (0.1th to 99.9th
   percentile, padding left out) beyond them. CT metal at 3071 beside bone at 1500 is not an outlier.
 
@@ -30,6 +33,8 @@ from .survey import SAMPLE_VOXELS, Survey, beyond_float_sums, survey_volume
 
 #: Least share of the voxels at one extreme value for it to be padding.
 PADDING_FRACTION = 0.005
+#: Largest share: a fill holding more of the voxels is a masked export's background (see the module notes).
+PADDING_MAX_FRACTION = 0.5
 #: Least gap, as a share of the value span, between a padding value and the next value present.
 PADDING_GAP = 0.15
 #: Least number of distinct values besides the padding for the volume to be a scan rather than a label map.
@@ -191,7 +196,7 @@ def robust_value_range(
             else (keep_high - np.searchsorted(sample, value, side="left"))
         )
         rest = sample[keep_low + run : keep_high] if side == "low" else sample[keep_low : keep_high - run]
-        if run < PADDING_FRACTION * sample.size or rest.size == 0:
+        if not PADDING_FRACTION * sample.size <= run <= PADDING_MAX_FRACTION * sample.size or rest.size == 0:
             continue
         gap = rest[0] - value if side == "low" else value - rest[-1]
         distinct = 1 + np.count_nonzero(rest[1:] != rest[:-1])  # the sample is sorted: no np.unique sort again
