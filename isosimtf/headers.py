@@ -7,9 +7,10 @@ the exact read of 64-bit integers, which Slicer's reader turns into float32.
 
 Fields honoured, as Slicer's ITK readers (teem for NRRD, MetaIO for MetaImage) honour them: NRRD ``encoding``,
 ``type``, ``sizes``, ``endian``, ``data file`` / ``datafile`` (one file), ``line skip`` and ``byte skip`` (-1: the
-voxels end the file); MetaImage ``NDims``, ``DimSize``, ``ElementType``, ``ElementNumberOfChannels``,
-``ElementByteOrderMSB`` / ``BinaryDataByteOrderMSB``, ``CompressedData``, ``CompressedDataSize``, ``HeaderSize``
-(-1: the voxels end the file) and ``ElementDataFile`` (``LOCAL`` or one file). Header lines may end in CRLF.
+voxels end the file; below -1 refused: teem reads header bytes as voxels); MetaImage ``NDims``, ``DimSize``,
+``ElementType``, ``ElementNumberOfChannels``, ``ElementByteOrderMSB`` / ``BinaryDataByteOrderMSB``, ``CompressedData``,
+``CompressedDataSize``, ``HeaderSize`` (-1: the voxels end the file; below -1 read as 0, as MetaIO does) and
+``ElementDataFile`` (``LOCAL`` or one file). Header lines may end in CRLF.
 
 Every data file a header names (one, a ``LIST`` or a numbered pattern, :func:`check_data_files`) is checked to be a
 regular file before any reader opens it.
@@ -217,9 +218,7 @@ def _raw_offset(path: Path, data: Path, start: int, nbytes: int, skip: int) -> i
         if size - nbytes < start:
             raise cannot_read(path, f"it is truncated: {nbytes} bytes of voxel data expected, {size - start} found")
         return size - nbytes
-    if skip < 0:
-        raise ValueError("negative skip")
-    return start + skip
+    return start + skip  # never below -1: refused (NRRD) or read as 0 (MetaImage) by the callers
 
 
 def _skip_lines(data: Path, start: int, count: int) -> int:
@@ -296,6 +295,13 @@ def _nrrd(path: Path, head: bytes) -> Optional[StoredVoxels]:
     fields, header_end = _nrrd_fields(head)
     if not fields:
         return None
+    byte_skip = int(fields.get("byte skip", fields.get("byteskip", 0)))
+    if byte_skip < -1:  # Slicer's reader (teem) reads that many bytes before the voxels: header bytes as voxels
+        raise cannot_read(
+            path,
+            f"its header gives byte skip {byte_skip}: only -1 (the voxels end the file) or a number of bytes from 0 "
+            "up is valid (Slicer's reader would read the header's own bytes as voxels)",
+        )
     sizes = [int(s) for s in fields.get("sizes", "").split()]
     kind = _NRRD_TYPES.get(fields.get("type", "").lower())
     detached = fields.get("data file", fields.get("datafile"))
@@ -316,7 +322,7 @@ def _nrrd(path: Path, head: bytes) -> Optional[StoredVoxels]:
     start = 0 if detached is not None else header_end
     start = _skip_lines(data, start, int(fields.get("line skip", fields.get("lineskip", 0))))
     nbytes = int(np.prod(shape, dtype=np.float64)) * dtype.itemsize
-    offset = _raw_offset(path, data, start, nbytes, int(fields.get("byte skip", fields.get("byteskip", 0))))
+    offset = _raw_offset(path, data, start, nbytes, byte_skip)
     return StoredVoxels(data, shape, dtype, True, offset, stored)
 
 
@@ -357,6 +363,8 @@ def _metaimage(path: Path, head: bytes) -> Optional[StoredVoxels]:
         return StoredVoxels(data, shape, dtype, False, None, stored, mismatch if declared != found else None)
     nbytes = int(np.prod(shape, dtype=np.float64)) * dtype.itemsize
     skip = int(fields.get("HeaderSize", 0))
+    if skip < -1:
+        skip = 0  # MetaIO skips bytes only for a HeaderSize above 0 (or -1): it reads the voxels from the start
     if local and skip > 0:
         if skip != header_end:
             # MetaIO then reads from byte HeaderSize of the file itself: inside the header, or past the voxels.

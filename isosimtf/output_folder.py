@@ -13,8 +13,9 @@ it recorded as changed. A file with an output's name that no run recorded (the u
 likewise, unless ``--overwrite``. The input is never removed. Every file is written under a temporary name of our own
 pattern (``.isosimtf-<pid>-<name>``) in its folder and renamed into place once complete, so an interrupted or failed
 write leaves no half file; only names of that pattern are cleaned. A symbolic link anywhere between the folder and an
-output (``scene/Data`` included), or as the lock file, is refused, never written through. One run at a time writes
-into a folder (a lock file, ``.isosimtf.lock``).
+output (``scene/Data`` included), or as the lock file or the journal, is refused, never written through. One run at
+a time writes into a folder (a lock file, ``.isosimtf.lock``). The records read back (classes.json, the journal) are
+read only from regular files of bounded size: a FIFO, a device or a huge file there records nothing.
 """
 
 import hashlib
@@ -22,6 +23,7 @@ import json
 import os
 import re
 import shutil
+import stat
 import tempfile
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -75,6 +77,9 @@ LOCK_FILE = ".isosimtf.lock"
 #: The journal: each output of the running run as it lands (a JSON line: name, SHA-256); removed once classes.json
 #: records them all.
 JOURNAL_FILE = ".isosimtf.journal"
+#: Longest record read back (classes.json, the journal): a run's record takes kilobytes (its design text at most a
+#: few MB); a longer one, like one that is not a regular file, records nothing.
+MAX_RECORD_BYTES = 64 << 20
 #: Output file names, by role.
 OUTPUT_FILES = {
     "similarity_npy": "similarity.npy",
@@ -155,9 +160,10 @@ def previous_outputs(path: Path) -> PreviousRun:
     SHA-256.
     """
     recorded: dict[str, Any] = {}
+    text = _read_record(path / CLASSES_JSON)
     try:
-        document = json.loads((path / CLASSES_JSON).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+        document = json.loads(text) if text is not None else None
+    except (ValueError, RecursionError):  # not JSON (UnicodeDecodeError is a ValueError), or nested without end
         document = None
     record_ours = isinstance(document, dict) and (document.get("tool") or {}).get("name") == "isosimtf"
     if record_ours:
@@ -182,21 +188,30 @@ def previous_outputs(path: Path) -> PreviousRun:
 
 def _journal(path: Path) -> dict[str, str]:
     """``name -> SHA-256`` of the outputs a killed run's journal lists (its last entry per name)."""
-    journal = path / JOURNAL_FILE
-    if journal.is_symlink() or not journal.is_file():
-        return {}
+    text = _read_record(path / JOURNAL_FILE)
     entries = {}
-    try:
-        lines = journal.read_text(encoding="utf-8").splitlines()
-    except (OSError, UnicodeDecodeError):
-        return {}
-    for line in lines:
+    for line in text.splitlines() if text is not None else []:
         try:
             entry = json.loads(line)
             entries[str(entry["name"])] = str(entry["sha256"])
-        except (ValueError, KeyError, TypeError):
+        except (ValueError, KeyError, TypeError, RecursionError):
             continue  # a line cut by the kill
     return entries
+
+
+def _read_record(file: Path) -> Optional[bytes]:
+    """The content of a record file (classes.json, the journal); None when it is missing, a symbolic link, not a
+    regular file (a FIFO would wait for a writer forever, a device never end) or longer than
+    :data:`MAX_RECORD_BYTES`."""
+    try:
+        descriptor = os.open(file, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOFOLLOW", 0))
+    except OSError:
+        return None
+    with os.fdopen(descriptor, "rb") as handle:
+        if not stat.S_ISREG(os.fstat(descriptor).st_mode):
+            return None
+        text = handle.read(MAX_RECORD_BYTES + 1)
+    return text if len(text) <= MAX_RECORD_BYTES else None
 
 
 def journal_output(path: Path, file: Path) -> None:
@@ -264,10 +279,10 @@ def check_outputs(
             f"replace it{f' and {len(replaced) - 1} other changed file(s)' if len(replaced) > 1 else ''}: move it "
             "away, or choose another -o"
         )
-    existing = [n for n in names if (path / n).is_file()]
+    existing = [n for n in names if _occupied(path / n)]
     if scene:
         data = path / SCENE_FOLDER / "Data"
-        existing += [f"{SCENE_FOLDER}/scene.mrml"] if (path / SCENE_FOLDER / "scene.mrml").is_file() else []
+        existing += [f"{SCENE_FOLDER}/scene.mrml"] if _occupied(path / SCENE_FOLDER / "scene.mrml") else []
         existing += [f"{SCENE_FOLDER}/Data/{f.name}" for f in sorted(data.iterdir())] if data.is_dir() else []
     if source is not None:
         inside = [n for n in existing if (path / n).resolve() == source.resolve()]
@@ -276,17 +291,19 @@ def check_outputs(
                 f"the input '{source}' is among this run's outputs ('{inside[0]}'): isosimtf never replaces its "
                 "input; copy it elsewhere, or choose another -o"
             )
-    foreign = [
-        n
-        for n in existing
-        if not (previous.record_ours if n == CLASSES_JSON else previous.ours(path, n)) and n not in previous.changed
-    ]
+    # Neither a previous run's unchanged file nor our record; a changed file among them was refused above.
+    foreign = [n for n in existing if not (previous.record_ours if n == CLASSES_JSON else previous.ours(path, n))]
     if foreign and not overwrite:
         raise UsageError(
             f"'{path / foreign[0]}' was not written by isosimtf"
             f"{f' (nor {len(foreign) - 1} other file(s))' if len(foreign) > 1 else ''}, and this run would replace "
             "it: move it away, choose another -o, or pass --overwrite"
         )
+
+
+def _occupied(file: Path) -> bool:
+    """Whether something a run would replace is at ``file``: a file, or a FIFO, socket or device (not a folder)."""
+    return file.exists() and not file.is_dir()
 
 
 class OutputFolder:
@@ -309,11 +326,15 @@ class OutputFolder:
     def __enter__(self) -> "OutputFolder":
         missing = [p for p in (self.path, *self.path.parents) if not p.exists()]
         lock = self.path / LOCK_FILE
-        if lock.is_symlink():
-            raise UsageError(
-                f"'{lock}' is a symbolic link (to '{os.readlink(lock)}'): isosimtf never writes through links; remove "
-                "it or choose another -o"
-            )
+        for ours in (lock, self.path / JOURNAL_FILE):
+            if ours.is_symlink():
+                raise UsageError(
+                    f"'{ours}' is a symbolic link (to '{os.readlink(ours)}'): isosimtf never writes through links; "
+                    "remove it or choose another -o"
+                )
+        journal = self.path / JOURNAL_FILE
+        if journal.exists() and not journal.is_file():  # a FIFO would make the first output wait forever
+            raise UsageError(f"'{journal}' is not a regular file: isosimtf keeps its journal there; remove it")
         try:
             self.path.mkdir(parents=True, exist_ok=True)
             self._created = missing
