@@ -6,13 +6,11 @@ is interrupted), Zarr runs (whose chunks dask reads in worker threads, which no 
 timeout and a bounded address space (a chunk linked to /dev/zero was read without end).
 """
 
-import contextlib
 import gzip
 import io
 import json
 import os
 import plistlib
-import signal
 import struct
 import subprocess
 import sys
@@ -20,11 +18,11 @@ import tarfile
 import time
 import warnings
 import zlib
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
+from deadlines import deadline
 from volume_writers import write_volume
 
 from IsoSimilarityTFLib import memory
@@ -48,25 +46,9 @@ def _values(dtype=np.int16) -> np.ndarray:
     return (np.arange(NK * NJ * NI).reshape(NK, NJ, NI) % 50 * 10).astype(dtype)
 
 
-@contextlib.contextmanager
-def _deadline(seconds: int = DEADLINE) -> Iterator[None]:
-    """Interrupt the block after ``seconds`` (a blocking open of a FIFO in the main thread returns to raise)."""
-
-    def expire(signum, frame) -> None:
-        raise TimeoutError(f"still running after {seconds} s")
-
-    previous = signal.signal(signal.SIGALRM, expire)
-    signal.alarm(seconds)
-    try:
-        yield
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, previous)
-
-
 def _run(source: Path, tmp_path: Path, capfd) -> tuple[int, str]:
     """``isosimtf SOURCE -o OUT --no-render -q`` in this process: its exit status and standard error."""
-    with _deadline():
+    with deadline(DEADLINE):
         code = cli.main([str(source), "-o", str(tmp_path / "out"), "--no-render", "-q"])
     return code, capfd.readouterr().err
 

@@ -4,20 +4,18 @@ asserting the behaviour the mutant breaks (a file removed outside OUTDIR, a host
 value range that says less than it leaves out). Thresholds are tested on both sides of their boundary.
 """
 
-import contextlib
 import gzip
 import json
 import os
-import signal
 import struct
 import subprocess
 import sys
 import warnings
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
+from deadlines import deadline
 from volume_writers import write_nifti
 
 from IsoSimilarityTFLib.design import design_transfer_function
@@ -52,29 +50,8 @@ PHANTOM = ["phantom", "--phantom-size", "16", "-q"]
 DEADLINE = 60
 
 
-class Hung(Exception):
-    """A run still going at its deadline: not an OSError (as TimeoutError is), which the code under test may catch
-    around the very open that waits."""
-
-
-@contextlib.contextmanager
-def _deadline(seconds: int = DEADLINE) -> Iterator[None]:
-    """Interrupt the block after ``seconds`` (a blocking open of a FIFO in the main thread returns to raise)."""
-
-    def expire(signum, frame) -> None:
-        raise Hung(f"still running after {seconds} s")
-
-    previous = signal.signal(signal.SIGALRM, expire)
-    signal.alarm(seconds)
-    try:
-        yield
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, previous)
-
-
 def _run(argv: list, capfd) -> tuple[int, str]:
-    with _deadline():
+    with deadline(DEADLINE):
         code = cli.main([str(a) for a in argv])
     return code, capfd.readouterr().err
 
