@@ -387,6 +387,13 @@ def _measure_looks(design: Any, repeats: int) -> dict:
     return {"n_looks": len(design.looks), **{f"{k}_s": _median(v) for k, v in times.items()}}
 
 
+def _timed(function: Callable, *args: Any) -> float:
+    """Seconds ``function(*args)`` takes."""
+    start = time.perf_counter()
+    function(*args)
+    return time.perf_counter() - start
+
+
 def similarity_floor(bins: Any, chunk_cells: int) -> Any:
     """The numpy floor of the similarity stage (issue 12): what no numpy similarity can do with less.
 
@@ -428,22 +435,17 @@ def _child_floor(cfg: dict) -> dict:
     del values
     all_levels = len(octree_levels(tuple(n - 1 for n in bins.shape)))
 
-    def timed(function: Callable, *args: Any) -> float:
-        start = time.perf_counter()
-        function(*args)
-        return time.perf_counter() - start
-
     chunk_times = {}
     for chunk in FLOOR_CHUNK_CELLS:
         similarity_floor(bins, chunk)
-        chunk_times[chunk] = min(timed(similarity_floor, bins, chunk) for _ in range(3))
+        chunk_times[chunk] = min(_timed(similarity_floor, bins, chunk) for _ in range(3))
     chunk = min(chunk_times, key=chunk_times.get)
     _, _, unit_level = next(interval_histograms(bins, 256, all_levels))
     floor_times, ours_times = [], []
     similarity_matrix(bins, 256)
     for _ in range(int(cfg["repeats"])):
-        floor_times.append(timed(similarity_floor, bins, chunk))
-        ours_times.append(timed(similarity_matrix, bins, 256))
+        floor_times.append(_timed(similarity_floor, bins, chunk))
+        ours_times.append(_timed(similarity_matrix, bins, 256))
     floor, ours = _median(floor_times), _median(ours_times)
     return {
         "config": cfg,
@@ -480,17 +482,12 @@ def _child_design_floor(cfg: dict) -> dict:
         values = values.astype(np.float32)
         values[:, :, : values.shape[2] // 10] = -3024.0
 
-    def timed(function: Callable, *args: Any) -> float:
-        start = time.perf_counter()
-        function(*args)
-        return time.perf_counter() - start
-
     chunk = FLOOR_CHUNK_CELLS[1]
     design_floor(values, chunk)
     design = design_transfer_function(values, spacing)
     floor_times, ours_times, stages = [], [], []
     for _ in range(int(cfg["repeats"])):
-        floor_times.append(timed(design_floor, values, chunk))
+        floor_times.append(_timed(design_floor, values, chunk))
         start = time.perf_counter()
         design = design_transfer_function(values, spacing)
         ours_times.append(time.perf_counter() - start)
@@ -872,6 +869,11 @@ def configurations(quick: bool, data: Path | None = None, big: bool = False) -> 
 # ----------------------------------------------------------------------------------------------------- reporting
 
 
+def _verdict(target: str, limit: float, measured: float, spec: str) -> list[str]:
+    """A row of a targets table for a multiple that must stay at or under ``limit``."""
+    return [target, f"<= {limit}x", f"{measured:{spec}}x", "PASS" if measured <= limit else "FAIL"]
+
+
 def _fmt_s(value: float | None) -> str:
     if value is None:
         return "-"
@@ -1031,12 +1033,12 @@ def build_report(machine: dict, groups: dict[str, list[dict]], quick: bool, wall
         )
         floor_summary.append({k: r[k] for k in ("floor_median_s", "ours_median_s", "multiple")} | {"name": name})
         verdicts12.append(
-            [
+            _verdict(
                 f"similarity / numpy floor, {name.removeprefix('floor ')}",
-                f"<= {TARGET_FLOOR_MULTIPLE}x",
-                f"{r['multiple']:.2f}x",
-                "PASS" if r["multiple"] <= TARGET_FLOOR_MULTIPLE else "FAIL",
-            ]
+                TARGET_FLOOR_MULTIPLE,
+                r["multiple"],
+                ".2f",
+            )
         )
     if big:
         peak = big["process_peak_mb"]
@@ -1114,21 +1116,9 @@ def build_report(machine: dict, groups: dict[str, list[dict]], quick: bool, wall
         )
         design_summary.append({k: r[k] for k in ("floor_median_s", "ours_median_s", "multiple")} | {"name": name})
         verdicts25.append(
-            [
-                f"whole design / numpy floor, {name}",
-                f"<= {TARGET_DESIGN_FLOOR_MULTIPLE}x",
-                f"{r['multiple']:.1f}x",
-                "PASS" if r["multiple"] <= TARGET_DESIGN_FLOOR_MULTIPLE else "FAIL",
-            ]
+            _verdict(f"whole design / numpy floor, {name}", TARGET_DESIGN_FLOOR_MULTIPLE, r["multiple"], ".1f")
         )
-        verdicts25.append(
-            [
-                f"stages after the pass / the pass, {name}",
-                "<= 1.0x",
-                f"{r['after_pass_over_pass']:.1f}x",
-                "PASS" if r["after_pass_over_pass"] <= 1.0 else "FAIL",
-            ]
-        )
+        verdicts25.append(_verdict(f"stages after the pass / the pass, {name}", 1.0, r["after_pass_over_pass"], ".1f"))
     summary["design_floor"] = design_summary
     summary["targets"] += [dict(zip(["target", "limit", "measured", "verdict"], v)) for v in verdicts25]
     if rows25:
