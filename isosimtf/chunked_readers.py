@@ -2,7 +2,7 @@
 
 None of these readers loads the volume: each returns a :class:`~.volume.Volume` whose ``values`` are a
 ``dask.array`` of shape ``(K, J, I)`` (slowest axis first), read a row of chunks at a time by the design
-(``IsoSimilarityTFLib.chunked``).
+(``IsoSimilarityTFLib.source``).
 
 - Zarr (a folder holding ``zarr.json``, ``.zarray`` or ``.zgroup``): an array, or an OME-Zarr image whose level 0
   (full resolution) is read; its coordinate transformations (the level's, then the image's: ``scale`` and

@@ -3,8 +3,8 @@
 On the local scheduler the ``isosimtf`` process folds the chunks into the octree, one row of chunks at a time, while
 dask's threads read and quantize the next one. On a cluster the similarity pass runs on the workers: one part of the
 volume (whole rows of chunks along axis 0) per worker thread, each read and counted by its worker, the counts merged
-on the workers (see ``IsoSimilarityTFLib.chunked``); only the merged counts come back. An in-memory volume never
-touches dask.
+on the workers (see ``IsoSimilarityTFLib.source`` and ``IsoSimilarityTFLib.stream``); only the merged counts come
+back. An in-memory volume never touches dask.
 """
 
 from typing import Any, Optional

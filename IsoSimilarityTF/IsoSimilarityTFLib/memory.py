@@ -95,7 +95,7 @@ def design_memory_bytes(shape: tuple, n_bins: int, streamed: bool = False) -> in
 
 
 # Rows of chunks of a streamed volume held at once at worst: the one the engine folds, the next one being computed
-# (its source values and bins), and the one the engine still refers to while it waits (see chunked.voxel_slabs).
+# (its source values and bins), and the one the engine still refers to while it waits (see source.VolumeSource.slabs).
 _ROWS_HELD = 3
 
 
@@ -110,7 +110,7 @@ def check_memory(
         input_bytes: bytes still to be allocated for the volume itself (a reader checking a header before reading).
         streamed: the volume is a dask array designed slab by slab (see :func:`design_memory_bytes`).
         row_bytes: bytes of one row of chunks of a streamed volume along axis 0, source values and bins together
-            (:func:`~.chunked.chunk_row_bytes`): a volume chunked in thick rows needs that much more.
+            (:meth:`~.source.VolumeSource.row_bytes`): a volume chunked in thick rows needs that much more.
     """
     valid_bins = not isinstance(n_bins, bool) and isinstance(n_bins, int) and 2 <= n_bins <= MAX_BINS
     available = available_memory_bytes()
