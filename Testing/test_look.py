@@ -214,6 +214,15 @@ def test_a_large_bright_tissue_ends_at_ivory_not_white():
     assert look.colors[2] == pytest.approx(list(ramp_colors(np.array([0.75]))[0]))
 
 
+@pytest.mark.parametrize("top, white", [(0.99, True), (1.01, False)])
+def test_white_is_kept_for_a_densest_tissue_within_the_white_share(top, white):
+    # The densest tissue holds just below or just above white_share of the largest one's 600 voxels.
+    classes = make_classes([1000, 600, round(top * RULES.white_share * 600)])
+    look = default_look(classes, np.arange(3), np.arange(3.0), "mr", noise_sd=0.2)
+    end = 1.0 if white else 0.75
+    assert look.colors[2] == pytest.approx(list(ramp_colors(np.array([end]))[0]))
+
+
 def test_the_densest_real_tissue_is_always_shown_and_stray_voxels_follow_a_real_tissue():
     classes = make_classes([100000, 40000, 30000, 20000, 10000, 5000, 3])
     tissue_of = np.arange(7)
