@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -136,6 +137,17 @@ def test_uint8_volume_through_create_default_volume_rendering_nodes():
         assert headless.show_volume(volume_node) is display_node
         picture = headless.render("left")
         assert _foreground(picture) > 0.01 * SIZE[0] * SIZE[1]
+
+
+@needs_slicer
+def test_no_temporary_presets_folder_outlives_loading_the_presets(tmp_path, monkeypatch):
+    # A render process killed mid-render (the CLI's watchdog, out of memory) cannot clean up: nothing may be left.
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    with rendering.HeadlessSlicer(size=SIZE) as headless:
+        assert list(tmp_path.iterdir()) == []
+        volume_node = headless.add_volume((_phantom() > 150).astype(np.uint8) * 200)
+        display_node = headless.volume_rendering_logic.CreateDefaultVolumeRenderingNodes(volume_node)
+        assert display_node.GetVolumePropertyNode().GetName() == "US-Fetal"  # read from the folder now gone
 
 
 @needs_slicer

@@ -339,7 +339,6 @@ class HeadlessSlicer:
         self._closed = False
         self._size = (int(size[0]), int(size[1]))
         self.rendering_method = rendering_method
-        self._presets_dir: str | None = None
 
         # --- scene and application logic (what qSlicerCoreApplication sets up, minus Qt)
         self.scene = slicer.vtkMRMLScene()
@@ -360,21 +359,22 @@ class HeadlessSlicer:
         self.volume_rendering_logic = slicer.vtkSlicerVolumeRenderingLogic()
         self.volume_rendering_logic.SetMRMLApplicationLogic(self.app_logic)
         self.volume_rendering_logic.SetMRMLScene(self.scene)
-        if presets_file is not None:
-            presets_path = Path(presets_file)
-            if not presets_path.is_file():
-                raise FileNotFoundError(f"presets file not found: {presets_path}")
-            if presets_path.name == "presets.xml":
-                self.volume_rendering_logic.SetModuleShareDirectory(str(presets_path.parent))
-            else:
-                self._presets_dir = tempfile.mkdtemp(prefix="isosimtf_vr_")
-                shutil.copyfile(presets_path, Path(self._presets_dir) / "presets.xml")
-                self.volume_rendering_logic.SetModuleShareDirectory(self._presets_dir)
+        if presets_file is not None and not Path(presets_file).is_file():
+            raise FileNotFoundError(f"presets file not found: {Path(presets_file)}")
+        if presets_file is not None and Path(presets_file).name == "presets.xml":
+            self.volume_rendering_logic.SetModuleShareDirectory(str(Path(presets_file).parent))
+            loaded = self.volume_rendering_logic.GetPresetByName("US-Fetal") is not None
         else:
-            self._presets_dir = tempfile.mkdtemp(prefix="isosimtf_vr_")
-            _write_minimal_presets(Path(self._presets_dir))
-            self.volume_rendering_logic.SetModuleShareDirectory(self._presets_dir)
-        if self.volume_rendering_logic.GetPresetByName("US-Fetal") is None:
+            # The logic reads presets.xml once, into its presets scene (GetPresetsScene): our copy goes at once, so
+            # that no temporary folder outlives a render process that is killed.
+            with tempfile.TemporaryDirectory(prefix="isosimtf_vr_") as presets_dir:
+                if presets_file is not None:
+                    shutil.copyfile(presets_file, Path(presets_dir) / "presets.xml")
+                else:
+                    _write_minimal_presets(Path(presets_dir))
+                self.volume_rendering_logic.SetModuleShareDirectory(presets_dir)
+                loaded = self.volume_rendering_logic.GetPresetByName("US-Fetal") is not None
+        if not loaded:
             raise RuntimeError("volume rendering presets could not be loaded (no 'US-Fetal' preset)")
         self.volume_rendering_logic.SetDefaultRenderingMethod(rendering_method)
         self.app_logic.SetModuleLogic("VolumeRendering", self.volume_rendering_logic)
@@ -695,9 +695,6 @@ class HeadlessSlicer:
                 "scene",
             ):
                 setattr(self, attribute, None)
-            if self._presets_dir is not None:
-                shutil.rmtree(self._presets_dir, ignore_errors=True)
-                self._presets_dir = None
 
 
 def render_volume(
