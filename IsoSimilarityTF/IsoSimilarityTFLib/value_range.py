@@ -177,8 +177,10 @@ def robust_value_range(
     data_range = (float(low), float(high))
     if survey.nonfinite or beyond_float_sums(survey):
         return RobustRange(data_range, data_range)
-    # Sorted in the volume's own dtype (a radix sort for 8- and 16-bit integers), then widened: the same order.
-    sample = np.sort(survey.sample, kind="stable").astype(np.float64)
+    # Sorted in the volume's own dtype, then widened: the same order. Sorted values are the same whatever the
+    # algorithm; numpy's fastest on 2M voxels here: radix (stable) for 8 bits, 8 ms, the default (a vectorized
+    # quicksort) for wider types, 3-24 ms where a stable sort of floats takes 450 ms.
+    sample = np.sort(survey.sample, kind="stable" if survey.sample.dtype.itemsize == 1 else None).astype(np.float64)
     if high <= low or sample.size < 2:
         return RobustRange(data_range, data_range)
 
