@@ -278,14 +278,38 @@ def test_a_linked_lock_file_is_refused_and_creates_nothing(tmp_path: Path, capfd
 
 
 @needs_slicer
-def test_a_linked_scene_data_folder_is_never_written_through(tmp_path: Path, capfd) -> None:
+@pytest.mark.parametrize("folder", ["Data", "scene_Private"])
+def test_a_linked_scene_data_folder_is_never_written_through(tmp_path: Path, capfd, folder: str) -> None:
+    """Before (scene_Private, where Slicer saves the design text node): the design text was written through the
+    link, outside OUTDIR, with exit 0."""
     outdir, elsewhere = tmp_path / "out", tmp_path / "elsewhere"
     (outdir / "scene").mkdir(parents=True)
     elsewhere.mkdir()
-    (outdir / "scene" / "Data").symlink_to(elsewhere)
+    (outdir / "scene" / folder).symlink_to(elsewhere)
     code, err = _run([*PHANTOM, "--size", "64", "-o", outdir], capfd)
-    assert code == 2 and f"'{outdir / 'scene' / 'Data'}' is a symbolic link" in err
+    assert code == 2 and f"'{outdir / 'scene' / folder}' is a symbolic link" in err
     assert not list(elsewhere.iterdir())
+
+
+@needs_slicer
+def test_every_file_of_the_scene_is_an_output_checked_recorded_and_removed(tmp_path: Path, capfd) -> None:
+    """Before: the scene's private file (``scene/scene_Private/<volume> IsoSimilarityTF design.txt``) was recorded
+    but not an output name: a user's file of that name was replaced without a word, and a --no-render re-run left
+    the previous run's copy behind."""
+    outdir = tmp_path / "out"
+    design_text = outdir / "scene" / "scene_Private" / "phantom IsoSimilarityTF design.txt"
+    design_text.parent.mkdir(parents=True)
+    design_text.write_text("my own notes")
+    code, err = _run([*PHANTOM, "--size", "64", "-o", outdir], capfd)
+    assert code == 2 and err.count("\n") == 1 and f"'{design_text}' was not written by isosimtf" in err
+    assert design_text.read_text() == "my own notes"
+    design_text.unlink()
+    assert _run([*PHANTOM, "--size", "64", "-o", outdir], capfd)[0] == 0
+    name = "scene/scene_Private/phantom IsoSimilarityTF design.txt"
+    assert design_text.is_file() and name in _document(outdir)["written"]
+    code, err = _run([*PHANTOM, "--no-render", "-o", outdir], capfd)
+    assert code == 0 and name in err, err
+    assert not (outdir / "scene").exists()
 
 
 @needs_slicer

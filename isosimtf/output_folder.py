@@ -13,9 +13,10 @@ it recorded as changed. A file with an output's name that no run recorded (the u
 likewise, unless ``--overwrite``. The input is never removed. Every file is written under a temporary name of our own
 pattern (``.isosimtf-<pid>-<name>``) in its folder and renamed into place once complete, so an interrupted or failed
 write leaves no half file; only names of that pattern are cleaned. A symbolic link anywhere between the folder and an
-output (``scene/Data`` included), or as the lock file or the journal, is refused, never written through. One run at
-a time writes into a folder (a lock file, ``.isosimtf.lock``). The records read back (classes.json, the journal) are
-read only from regular files of bounded size: a FIFO, a device or a huge file there records nothing.
+output (``scene/Data`` and ``scene/scene_Private`` included), or as the lock file or the journal, is refused, never
+written through. One run at a time writes into a folder (a lock file, ``.isosimtf.lock``). The records read back
+(classes.json, the journal) are read only from regular files of bounded size: a FIFO, a device or a huge file there
+records nothing.
 """
 
 import hashlib
@@ -39,6 +40,10 @@ PathLike = Union[str, "os.PathLike[str]"]
 SCENE_FOLDER = "scene"
 #: The file a run records its outputs in; read back to find a previous run's files.
 CLASSES_JSON = "classes.json"
+#: The folders of ``scene/`` Slicer's bundle writer saves the scene's files into: ``Data`` (the volume, the
+#: transfer function) and ``scene_Private`` (the design text node, named after ``scene.mrml``). Every file there is an
+#: output; a file the writer would put anywhere else is refused.
+SCENE_DATA_FOLDERS = ("Data", "scene_Private")
 #: Longest output folder path accepted: Slicer's writers crash (a segmentation fault, not an error) on paths near
 #: the system's 4096-character limit, and the scene's files add their own names below the folder.
 MAX_OUTDIR_CHARACTERS = 1024
@@ -109,8 +114,9 @@ def look_file(name: str) -> str:
 
 def is_output_name(name: str) -> bool:
     """Whether ``name`` (relative to the output folder, ``/``-separated) is a file this tool writes: one of
-    :data:`TOP_OUTPUTS`, ``looks/<look>.vp.json``, ``scene/scene.mrml`` or a file of ``scene/Data/``. A record naming
-    anything else (``../x``, a user's notes) is not trusted."""
+    :data:`TOP_OUTPUTS`, ``looks/<look>.vp.json``, ``scene/scene.mrml`` or a file of ``scene/Data/`` or
+    ``scene/scene_Private/`` (:data:`SCENE_DATA_FOLDERS`). A record naming anything else (``../x``, a user's notes) is
+    not trusted."""
     parts = name.split("/")
     if any(part in ("", ".", "..") for part in parts):
         return False
@@ -118,7 +124,9 @@ def is_output_name(name: str) -> bool:
         return name in TOP_OUTPUTS
     if parts[0] == LOOKS_FOLDER:
         return name in {look_file(look) for look in LOOK_NAMES}
-    return parts[0] == SCENE_FOLDER and (parts[1:] == ["scene.mrml"] or (len(parts) == 3 and parts[1] == "Data"))
+    return parts[0] == SCENE_FOLDER and (
+        parts[1:] == ["scene.mrml"] or (len(parts) == 3 and parts[1] in SCENE_DATA_FOLDERS)
+    )
 
 
 def file_stamp(path: Path) -> str:
@@ -260,11 +268,12 @@ def check_outputs(
         source: the input file, never replaced.
 
     Raises:
-        UsageError: a link on the way to an output (or ``scene/``, ``scene/Data``), a changed file or a file no run
-            recorded (without ``overwrite``) that would be replaced, or the input among the outputs.
+        UsageError: a link on the way to an output (or ``scene/`` and its data folders), a changed file or a file no
+            run recorded (without ``overwrite``) that would be replaced, or the input among the outputs.
     """
     names = list(names)
-    scene_names = [f"{SCENE_FOLDER}/scene.mrml", f"{SCENE_FOLDER}/Data"] if scene else []
+    scene_folders = [f"{SCENE_FOLDER}/{folder}" for folder in SCENE_DATA_FOLDERS]
+    scene_names = [f"{SCENE_FOLDER}/scene.mrml", *scene_folders] if scene else []
     for name in [*names, *scene_names]:
         link = _linked(path, name)
         if link is not None:
@@ -281,9 +290,10 @@ def check_outputs(
         )
     existing = [n for n in names if _occupied(path / n)]
     if scene:
-        data = path / SCENE_FOLDER / "Data"
         existing += [f"{SCENE_FOLDER}/scene.mrml"] if _occupied(path / SCENE_FOLDER / "scene.mrml") else []
-        existing += [f"{SCENE_FOLDER}/Data/{f.name}" for f in sorted(data.iterdir())] if data.is_dir() else []
+        for folder in scene_folders:
+            data = path / folder
+            existing += [f"{folder}/{f.name}" for f in sorted(data.iterdir())] if data.is_dir() else []
     if source is not None:
         inside = [n for n in existing if (path / n).resolve() == source.resolve()]
         if inside:
@@ -440,10 +450,12 @@ def save_scene(scene: Any, outdir: Path) -> list[Path]:
     """Save a Slicer scene as ``outdir/scene/scene.mrml`` with its data files; return the files written.
 
     Slicer's bundle writer saves into a staging folder beside (inside ``outdir``, so moves stay on one file system);
-    its files then replace their namesakes in ``scene/``, and nothing else there is touched.
+    its files then replace their namesakes in ``scene/``, and nothing else there is touched. A file the writer put
+    where no output goes (outside :data:`SCENE_DATA_FOLDERS`), or whose way holds a link, is refused, never moved.
 
     Raises:
-        RenderError: Slicer could not save the scene. OutputError: a file cannot be moved into place.
+        RenderError: Slicer could not save the scene. OutputError: a file cannot be moved into place, or is not an
+            output.
     """
     target = outdir / SCENE_FOLDER
     written = []
@@ -454,7 +466,12 @@ def save_scene(scene: Any, outdir: Path) -> list[Path]:
         if not scene.SaveSceneToSlicerDataBundleDirectory(str(staging)):
             raise RenderError(f"Slicer could not save the scene into '{target}'")
         try:
-            for file in sorted(p for p in staging.rglob("*") if p.is_file()):
+            files = sorted(p for p in staging.rglob("*") if p.is_file())
+            for file in files:
+                name = f"{SCENE_FOLDER}/{file.relative_to(staging).as_posix()}"
+                if not is_output_name(name) or _linked(outdir, name) is not None:
+                    raise OutputError(f"Slicer saved the scene file '{name}', which is not an output isosimtf writes")
+            for file in files:
                 destination = target / file.relative_to(staging)
                 destination.parent.mkdir(parents=True, exist_ok=True)
                 os.replace(file, destination)
