@@ -340,3 +340,20 @@ def test_a_closed_stdout_loses_only_the_summary(tmp_path: Path) -> None:
     done = subprocess.run(argv, stderr=subprocess.PIPE, text=True, preexec_fn=lambda: os.close(1), timeout=300)
     assert done.returncode == 0 and done.stderr == "", done.stderr
     assert (tmp_path / "out" / "transfer_function.vp.json").is_file()
+
+
+@pytest.mark.parametrize("name", ["similarity.npy", "classes.json", "looks/classes.vp.json"])
+def test_a_link_with_this_runs_temporary_name_is_never_written_through(tmp_path: Path, capfd, name: str) -> None:
+    """Before: a link planted under the temporary name this run would use (``.isosimtf-<pid>-<output>``, the pid
+    guessed) was skipped by the cleanup and then written through: the output landed in the link's target, outside
+    OUTDIR."""
+    outdir, target = tmp_path / "out", tmp_path / "elsewhere" / "mine.txt"
+    target.parent.mkdir()
+    target.write_text("my own file")
+    planted = outdir / name
+    planted = planted.with_name(f"{TEMPORARY_PREFIX}{os.getpid()}-{planted.name}")
+    planted.parent.mkdir(parents=True)
+    planted.symlink_to(target)
+    code, err = _run([*PHANTOM, "--no-render", "-o", outdir], capfd)
+    assert code == 0, err
+    assert target.read_text() == "my own file" and (outdir / name).is_file() and not (outdir / name).is_symlink()

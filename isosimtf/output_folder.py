@@ -412,6 +412,8 @@ def write_atomically(path: Path, write: Callable[[Path], object]) -> None:
     """
     temporary = path.with_name(f"{TEMPORARY_PREFIX}{os.getpid()}-{path.name}")
     try:
+        if temporary.is_symlink() or temporary.is_file():  # a name of our pattern and pid (a link planted there would
+            temporary.unlink()  # be written through): we hold the folder's lock, so it is no other run's
         write(temporary)
         os.replace(temporary, path)
     except OSError as error:
