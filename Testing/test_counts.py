@@ -21,26 +21,34 @@ def reference_background_contact(bins, labels, background_id, step):
     return np.bincount(measured[near], minlength=n_classes) / np.maximum(totals, 1)
 
 
-def random_case(rng, n_bins):
+def random_case(rng, n_bins, runs=True):
     shape = tuple(int(s) for s in rng.integers(2, 13, 3))
     smooth = np.cumsum(rng.integers(0, 3, shape), axis=int(rng.integers(0, 3)))  # regions, not just noise
     bins = (smooth * n_bins // (smooth.max() + 1)).astype(np.uint8 if n_bins <= 256 else np.uint16)
     n_classes = int(rng.integers(1, 9))
-    labels = np.sort(rng.integers(0, n_classes, n_bins))
+    labels = rng.integers(0, n_classes, n_bins)
+    if runs:  # classes as runs of bins, as affinity propagation mostly gives; else scattered bins
+        labels = np.sort(labels)
     labels = np.unique(labels, return_inverse=True)[1]  # ids 0..k-1, as affinity propagation gives
     return bins, labels, int(rng.integers(0, labels.max() + 1))
 
 
+@pytest.mark.parametrize("runs", [True, False])
 @pytest.mark.parametrize("sample_voxels", [1 << 22, 300, 60])
-def test_background_contact_equals_reference(sample_voxels, monkeypatch):
-    """All planes (small volumes) or every k-th plane (large ones, here made small), any class count and background."""
+def test_background_contact_equals_reference(sample_voxels, runs, monkeypatch):
+    """All planes (small volumes) or every k-th plane (large ones, here made small), any class count and background,
+    classes as runs of bins (the background tested by comparisons) or scattered (by a table), with or without the
+    volume's voxel counts."""
     monkeypatch.setattr(classes, "_CONTACT_SAMPLE_VOXELS", sample_voxels)
     rng = np.random.default_rng(sample_voxels)
     for _ in range(60):
-        bins, labels, background_id = random_case(rng, int(rng.choice([7, 256, 300])))
+        n_bins = int(rng.choice([7, 256, 300]))
+        bins, labels, background_id = random_case(rng, n_bins, runs)
         step = max(1, bins.size // sample_voxels)
         expected = reference_background_contact(bins, labels, background_id, step)
         np.testing.assert_array_equal(classes.background_contact(bins, labels, background_id), expected)
+        bin_voxels = np.bincount(bins.reshape(-1), minlength=n_bins)
+        np.testing.assert_array_equal(classes.background_contact(bins, labels, background_id, bin_voxels), expected)
 
 
 def test_background_contact_of_a_known_volume():

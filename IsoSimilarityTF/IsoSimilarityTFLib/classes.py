@@ -1,7 +1,7 @@
 """Step 5 of the pipeline: turn isovalue clusters into ranked, coloured classes of voxels."""
 
 from dataclasses import dataclass, field
-from typing import Optional
+from typing import Callable, Optional
 
 import numpy as np
 
@@ -18,6 +18,8 @@ PALETTE: tuple[tuple[float, float, float], ...] = tuple(
 
 # Voxels sampled (whole planes, evenly spaced) to measure background contact: enough for a share, and fast.
 _CONTACT_SAMPLE_VOXELS = 1 << 22
+# Background runs tested by comparisons; more take a table lookup (see _background_test).
+_MAX_COMPARED_RUNS = 4
 
 
 @dataclass
@@ -103,7 +105,9 @@ def runs(sorted_bins: np.ndarray) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(firsts, lasts)]
 
 
-def background_contact(bins: np.ndarray, labels: np.ndarray, background_id: int) -> np.ndarray:
+def background_contact(
+    bins: np.ndarray, labels: np.ndarray, background_id: int, bin_voxels: Optional[np.ndarray] = None
+) -> np.ndarray:
     """Share of each class's voxels that have a background voxel among their 6 neighbours.
 
     Args:
@@ -112,35 +116,63 @@ def background_contact(bins: np.ndarray, labels: np.ndarray, background_id: int)
             neighbours (:class:`~.taps.SlabTap`'s kept planes).
         labels: ``(n_bins,)`` class id per bin.
         background_id: the background class.
+        bin_voxels: ``(n_bins,)`` voxels per bin in the whole volume, if known: the class totals when every plane
+            is measured (saves counting them again).
 
     Returns:
         ``(n_classes,)`` shares in [0, 1], measured on evenly spaced planes along axis 0 for large volumes; 0 for
-        a class with no voxel in the planes measured.
+        a class with no voxel in the planes measured (1 for the background if it has any).
     """
-    n_classes = int(labels.max()) + 1
-    # Twice the class id per bin, so that adding "touches the background" (0 or 1) makes one index per voxel.
-    twice_class_of_bin = 2 * np.asarray(labels, dtype=np.uint16)
-    background = 2 * background_id
-    counts = np.zeros(2 * n_classes, dtype=np.int64)
-    # Each plane's classes are looked up once, and kept while it neighbours the planes measured.
+    labels = np.asarray(labels)
+    n_bins, n_classes = labels.size, int(labels.max()) + 1
+    planes = contact_planes(bins.shape)
+    counted = bin_voxels is not None and planes.step == 1
+    # Counted per bin, then summed per class: no class lookup per voxel. Only voxels outside the background that
+    # touch it are counted (a thin shell); the background's own voxels all touch it.
+    touching = np.zeros(n_bins, dtype=np.int64)
+    totals = np.asarray(bin_voxels, dtype=np.int64) if counted else np.zeros(n_bins, dtype=np.int64)
+    is_background = _background_test(labels == background_id)
+    # Each plane's background is found once, and kept while it neighbours the planes measured.
     looked_up: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    for plane in contact_planes(bins.shape):
+    for plane in planes:
         window = range(max(plane - 1, 0), min(plane + 2, bins.shape[0]))
-        looked_up = {
-            k: looked_up[k] if k in looked_up else _plane_classes(twice_class_of_bin, np.asarray(bins[k]), background)
-            for k in window
-        }
-        classes, in_plane = looked_up[plane]
+        looked_up = {k: looked_up[k] if k in looked_up else is_background(np.asarray(bins[k])) for k in window}
+        plane_bins, in_plane = looked_up[plane]
         near = in_plane.copy()
-        for k in window:  # the voxel itself and its neighbours in the planes either side
-            near |= looked_up[k][1]
+        for k in window:  # the neighbours in the planes either side
+            if k != plane:
+                near |= looked_up[k][1]
         near[1:] |= in_plane[:-1]
         near[:-1] |= in_plane[1:]
         near[:, 1:] |= in_plane[:, :-1]
         near[:, :-1] |= in_plane[:, 1:]
-        counts += np.bincount((classes + near).reshape(-1), minlength=2 * n_classes)
-    touching, totals = counts[1::2], counts[0::2] + counts[1::2]
-    return touching / np.maximum(totals, 1)
+        near &= ~in_plane
+        touching += np.bincount(plane_bins.reshape(-1)[np.flatnonzero(near)], minlength=n_bins)
+        if not counted:
+            totals += np.bincount(plane_bins.reshape(-1), minlength=n_bins)
+    class_touching = np.bincount(labels, weights=touching, minlength=n_classes)
+    class_totals = np.bincount(labels, weights=totals, minlength=n_classes)
+    class_touching[background_id] = class_totals[background_id]
+    return class_touching / np.maximum(class_totals, 1)
+
+
+def _background_test(background_bins: np.ndarray) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """``plane -> (plane, is background)`` for a plane of bins, ``background_bins`` ``(n_bins,)`` bool.
+
+    The background's bins are usually one run: two comparisons per voxel cost a tenth of a table lookup (whose
+    indices numpy first widens to 64 bits).
+    """
+    background_runs = runs(np.flatnonzero(background_bins))
+    if len(background_runs) > _MAX_COMPARED_RUNS:
+        return lambda plane: (plane, np.take(background_bins, plane))
+
+    def compared(plane: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        inside = np.zeros(plane.shape, dtype=bool)
+        for first, last in background_runs:
+            inside |= (plane >= first) & (plane <= last)
+        return plane, inside
+
+    return compared
 
 
 def contact_planes(shape: tuple[int, int, int]) -> range:
@@ -154,11 +186,6 @@ def planes_read(shape: tuple[int, int, int]) -> list[int]:
     """Every plane :func:`background_contact` reads of a volume of ``shape`` voxels: the :func:`contact_planes` and
     their neighbours along axis 0."""
     return sorted({k + d for k in contact_planes(shape) for d in (-1, 0, 1) if 0 <= k + d < shape[0]})
-
-
-def _plane_classes(twice_class_of_bin: np.ndarray, plane: np.ndarray, background: int) -> tuple[np.ndarray, np.ndarray]:
-    classes = np.take(twice_class_of_bin, plane)
-    return classes, classes == background
 
 
 def build_classes(
@@ -204,7 +231,7 @@ def build_classes(
 
     contact = np.zeros(n_classes)
     if bins is not None and background_id is not None:
-        contact = background_contact(bins, labels, background_id)
+        contact = background_contact(bins, labels, background_id, bin_voxels)
     classes = []
     for class_id in range(n_classes):
         members = np.flatnonzero(labels == class_id)
