@@ -686,7 +686,7 @@ def _source(values, opts: dict) -> Union[VolumeSource, Quantization]:
     source = VolumeSource(values)
     opts["n_bins"] = n_bins = checked_n_bins(opts["n_bins"])
     row_bytes = source.row_bytes(bins_dtype(n_bins).itemsize)
-    check_memory(source.shape, n_bins, streamed=source.lazy, row_bytes=row_bytes)
+    check_memory(source.shape, n_bins, row_bytes=row_bytes)
     return source
 
 

@@ -11,10 +11,9 @@ from .cells import GATHERED_CELLS, octree_levels
 from .errors import InsufficientMemoryError
 from .options import MAX_BINS
 
-# Bytes per voxel of the quantized volume, per byte of bin index (not held for a volume streamed from a dask array).
-# The unit cells are never held whole, nor are the octree levels above them: a level of more than
-# ``cells.GATHERED_CELLS`` hyper-cells is counted row by row into its own table, a smaller one is gathered whole.
-_BINS_BYTES_PER_VOXEL = 1
+# The bins are never held whole (each slab is binned as the similarity pass reads it: source.VolumeSource.map_slabs),
+# nor are the unit cells, nor the octree levels above them: a level of more than ``cells.GATHERED_CELLS`` hyper-cells
+# is counted row by row into its own table, a smaller one is gathered whole.
 # Float64 matrices of n_bins x n_bins alive at once while aggregating the levels.
 _MATRICES = 6
 # Slabs, chunks and libraries.
@@ -72,15 +71,12 @@ def _cgroup_left() -> Optional[int]:
         return None
 
 
-def design_memory_bytes(shape: tuple, n_bins: int, streamed: bool = False) -> int:
+def design_memory_bytes(shape: tuple, n_bins: int) -> int:
     """Estimated peak memory of designing a transfer function, in bytes, for a volume of ``shape`` voxels.
 
-    Counts what the pipeline allocates beyond the input volume itself. ``streamed``: the volume is a dask array, read
-    one row of chunks at a time, whose bins are never held whole.
+    Counts what the pipeline allocates beyond the input volume itself (and, for a dask volume, beyond the rows of
+    chunks it holds: :func:`check_memory`'s ``row_bytes``).
     """
-    voxels = 1
-    for n in shape:
-        voxels *= int(n)
     index_bytes = 1 if n_bins <= 256 else 2
     table_bytes = 8 * n_bins * n_bins
     levels_bytes = table_bytes  # the unit cells' table
@@ -90,8 +86,7 @@ def design_memory_bytes(shape: tuple, n_bins: int, streamed: bool = False) -> in
         for n, s in zip(grid, size):
             cells *= -(-n // s)
         levels_bytes += table_bytes if cells > max(GATHERED_CELLS, n_bins * n_bins) else 2 * cells * index_bytes
-    bins_bytes = 0 if streamed else voxels * index_bytes * _BINS_BYTES_PER_VOXEL
-    return int(bins_bytes + levels_bytes + _MATRICES * table_bytes + _OVERHEAD_BYTES)
+    return int(levels_bytes + _MATRICES * table_bytes + _OVERHEAD_BYTES)
 
 
 # Rows of chunks of a streamed volume held at once at worst: the one the engine folds, the next one being computed
@@ -99,23 +94,20 @@ def design_memory_bytes(shape: tuple, n_bins: int, streamed: bool = False) -> in
 _ROWS_HELD = 3
 
 
-def check_memory(
-    shape: tuple, n_bins: Optional[int], *, input_bytes: int = 0, streamed: bool = False, row_bytes: int = 0
-) -> None:
+def check_memory(shape: tuple, n_bins: Optional[int], *, input_bytes: int = 0, row_bytes: int = 0) -> None:
     """Raise :class:`InsufficientMemoryError` when the design would need more memory than is available.
 
     Args:
         shape: the volume's shape.
         n_bins: the number of bins; None (or a bad value, which the step that uses it reports) counts the input only.
         input_bytes: bytes still to be allocated for the volume itself (a reader checking a header before reading).
-        streamed: the volume is a dask array designed slab by slab (see :func:`design_memory_bytes`).
         row_bytes: bytes of one row of chunks of a streamed volume along axis 0, source values and bins together
             (:meth:`~.source.VolumeSource.row_bytes`): a volume chunked in thick rows needs that much more.
     """
     valid_bins = not isinstance(n_bins, bool) and isinstance(n_bins, int) and 2 <= n_bins <= MAX_BINS
     available = available_memory_bytes()
     needed = int(input_bytes) + _ROWS_HELD * int(row_bytes)
-    needed += design_memory_bytes(shape, n_bins, streamed) if valid_bins else 0  # type: ignore[arg-type]
+    needed += design_memory_bytes(shape, n_bins) if valid_bins else 0  # type: ignore[arg-type]
     if available is not None and needed > available:
         dims = " x ".join(str(int(n)) for n in shape)
         bins = f" with {n_bins} bins" if valid_bins else ""

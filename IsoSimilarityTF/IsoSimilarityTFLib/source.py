@@ -6,7 +6,8 @@ This is the only module that knows whether a volume is a dask array. Everything 
   memory already); a dask volume is one row of chunks at a time, the next row read by dask's scheduler while the
   caller works on the current one, with the two border planes between rows when the caller needs a one-voxel halo
   (the unit cells across the border).
-- :meth:`~VolumeSource.map_slabs`: the same function applied to every slab, kept lazy for a dask volume (the bins).
+- :meth:`~VolumeSource.map_slabs`: the same function applied to every slab as it is read (the bins): lazily for a
+  dask volume, a few planes at a time for one in memory, so the mapped volume is never held whole.
 - :meth:`~VolumeSource.map_reduce`: a function of consecutive slabs over parts of the volume along axis 0, merged
   pairwise: one part counted here, or on a dask.distributed cluster (or dask's ``"processes"`` scheduler) one part
   per worker, each reading its own chunks.
@@ -21,6 +22,10 @@ import numpy as np
 
 Slab = tuple[int, np.ndarray]
 Result = TypeVar("Result")
+
+# Voxels of the slabs an in-memory volume is mapped in (see VolumeSource.map_slabs): a few MB of bins, many times the
+# engine's cache-sized pieces (stream._SLAB_CELLS), so the slabs' own cost is small.
+_MAPPED_SLAB_VOXELS = 1 << 22
 
 
 def is_dask_array(values: object) -> bool:
@@ -111,10 +116,11 @@ class VolumeSource:
         yield from _dask_slabs(self.values, overlap)
 
     def map_slabs(self, function: Callable[[np.ndarray], np.ndarray], dtype) -> "VolumeSource":
-        """``function`` (elementwise, shape-preserving) applied to every voxel: at once in memory, lazily for a dask
-        volume (each chunk when it is read; a chunk one voxel thick gets its neighbour's planes too)."""
+        """``function`` (elementwise, shape-preserving, giving ``dtype``) applied to every voxel as the slabs are
+        read: lazily for a dask volume (each chunk when it is read; a chunk one voxel thick gets its neighbour's
+        planes too), a slab of a few planes at a time for a volume in memory (no copy of the whole volume is made)."""
         if not self.lazy:
-            return VolumeSource(function(self.values))
+            return _MappedSource(self.values, function, dtype)
         values = self.values.rechunk(tuple(_merge_thin_chunks(chunks) for chunks in self.values.chunks))
         return VolumeSource(values.map_blocks(function, dtype=dtype))
 
@@ -140,6 +146,50 @@ class VolumeSource:
         if not self.lazy:
             return part(self.slabs(overlap=True), 0, self.shape[0] - 1, progress)
         return _dask_map_reduce(self.values, part, merge, progress)
+
+
+class _MappedSource(VolumeSource):
+    """A volume in memory read through an elementwise function, a slab of a few planes at a time: what
+    :meth:`VolumeSource.map_slabs` gives for a volume in memory."""
+
+    def __init__(self, values: np.ndarray, function: Callable[[np.ndarray], np.ndarray], dtype) -> None:
+        self._source = values
+        self._function = function
+        self._dtype = np.dtype(dtype)
+        self.lazy = False
+
+    @property
+    def values(self) -> np.ndarray:
+        """The whole mapped volume, made on demand (the engine reads :meth:`slabs` instead)."""
+        return self._function(self._source)
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        return tuple(int(n) for n in self._source.shape)
+
+    @property
+    def dtype(self) -> np.dtype:
+        return self._dtype
+
+    def slabs(self, overlap: bool = False) -> Iterator[Slab]:
+        planes = max(2, _MAPPED_SLAB_VOXELS // int(np.prod(self.shape[1:], dtype=np.int64)))
+        starts = list(range(0, self.shape[0], planes))
+        if len(starts) > 1 and self.shape[0] - starts[-1] < 2:
+            starts.pop()  # no slab one plane thick, as a dask volume's thin chunks are merged (_merge_thin_chunks)
+        previous = None
+        for first, end in zip(starts, [*starts[1:], self.shape[0]]):
+            slab = self._function(self._source[first:end])
+            if overlap and previous is not None:
+                yield first - 1, np.concatenate((previous, slab[:1]))
+            yield first, slab
+            previous = slab[-1:].copy()
+
+    def map_slabs(self, function: Callable[[np.ndarray], np.ndarray], dtype) -> VolumeSource:
+        inner = self._function
+        return _MappedSource(self._source, lambda values: function(inner(values)), dtype)
+
+    def sample(self, step: int) -> np.ndarray:
+        return self._function(np.asarray(self._source[::step, ::step, ::step]))
 
 
 def _merge_thin_chunks(chunks: tuple[int, ...]) -> tuple[int, ...]:

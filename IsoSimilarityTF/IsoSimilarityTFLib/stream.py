@@ -95,7 +95,7 @@ def bins_source(bins, n_bins: int) -> VolumeSource:
         raise ValueError(f"bins must hold integers (use quantize() first); got dtype {bins.dtype}")
     checked_n_bins(n_bins)
     # A clear error, not numpy's MemoryError (or the OOM killer) mid-way.
-    check_memory(bins.shape, int(n_bins), streamed=bins.lazy)
+    check_memory(bins.shape, int(n_bins))
     return bins
 
 
