@@ -357,3 +357,16 @@ def test_a_link_with_this_runs_temporary_name_is_never_written_through(tmp_path:
     code, err = _run([*PHANTOM, "--no-render", "-o", outdir], capfd)
     assert code == 0, err
     assert target.read_text() == "my own file" and (outdir / name).is_file() and not (outdir / name).is_symlink()
+
+
+@pytest.mark.parametrize("closed", [2, 0], ids=["stderr", "stdin"])
+def test_a_closed_standard_stream_loses_only_what_goes_there(tmp_path: Path, closed: int) -> None:
+    """Before: `isosimtf ... 2>&-` (progress lines on) ended with exit 1, no message and no outputs: Python starts
+    with ``sys.stderr`` None, and the first file opened would take descriptor 2, where native libraries write."""
+    import subprocess
+    import sys
+
+    argv = [sys.executable, "-m", "isosimtf", *PHANTOM[:3], "--no-render", "-o", str(tmp_path / "out")]
+    done = subprocess.run(argv, capture_output=closed != 2, preexec_fn=lambda: os.close(closed), timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert json.loads((tmp_path / "out" / "classes.json").read_text())["tool"]["name"] == "isosimtf"
