@@ -105,3 +105,21 @@ def test_close_ends_a_starting_child_at_once() -> None:
     assert time.perf_counter() - start < 1.0  # killed, not waited for while it imports slicer-core
     assert renderer._process.returncode is not None
     assert not _children()
+
+
+def test_a_child_dying_of_low_memory_says_so_in_one_line(tmp_path: Path) -> None:
+    """Before: the child's native dumps (``terminate called after throwing an instance of 'std::bad_alloc'``,
+    libEGL warnings) reached the terminal beside the error line, which said only "exit code -6". Now the child's
+    stderr is kept, its reason joins the one line, and the dumps show with ISOSIMTF_DEBUG=1 alone."""
+    limit = 1 << 30  # enough for the design of 64^3, not for the child's headless Slicer to render it
+    bounded = (
+        f"import resource, runpy, sys; resource.setrlimit(resource.RLIMIT_AS, ({limit}, {limit})); "
+        "runpy.run_module('isosimtf', run_name='__main__')"
+    )
+    argv = [sys.executable, "-c", bounded, "phantom", "--phantom-size", "64", "-q", "-o", str(tmp_path / "out")]
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=300)
+    if done.returncode == 0:
+        pytest.skip("the child rendered within the bound here")
+    assert done.returncode == 1 and done.stderr.count("\n") == 1, done.stderr
+    assert done.stderr.startswith("isosimtf: error: rendering failed (the rendering process ended unexpectedly")
+    assert "out of memory" in done.stderr

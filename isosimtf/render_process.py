@@ -22,6 +22,7 @@ import pickle
 import signal
 import subprocess
 import sys
+import tempfile
 import traceback
 from dataclasses import replace
 from typing import Any, BinaryIO
@@ -44,10 +45,15 @@ class RenderProcess:
     """
 
     def __init__(self, **window: Any) -> None:
+        # What the child and its libraries write to stderr (EGL warnings, a native "std::bad_alloc" dump, a bug's
+        # traceback) is kept here, not shown beside the run's one error line: its reason joins that line when the
+        # child dies, and all of it shows with ISOSIMTF_DEBUG=1. A file, not a pipe, which nobody would empty.
+        self._errors = tempfile.TemporaryFile()
         self._process = subprocess.Popen(
             [sys.executable, "-m", __name__, json.dumps(window)],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
+            stderr=self._errors,
             # The child imports what this process imported, from where it did.
             env={**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)},
         )
@@ -80,7 +86,16 @@ class RenderProcess:
                     raise RenderError(reply[1])
         except (EOFError, BrokenPipeError, ConnectionResetError):
             code = self._process.wait()
-            raise RenderError(f"the rendering process ended unexpectedly (exit code {code})") from None
+            raise RenderError(f"the rendering process ended unexpectedly (exit code {code}{self._reason()})") from None
+
+    def _reason(self) -> str:
+        """Why the child died, from what it wrote to stderr: ``"; out of memory"``, its last line, or nothing."""
+        self._errors.seek(0)
+        said = self._errors.read()[-(1 << 16) :].decode("utf-8", "replace")
+        if "bad_alloc" in said or "MemoryError" in said or "Cannot allocate memory" in said:
+            return "; out of memory"
+        lines = [line.strip() for line in said.splitlines() if line.strip()]
+        return f"; {lines[-1][:200]}" if lines else ""
 
     def close(self) -> None:
         """End the child at once and release the pipes.
@@ -96,6 +111,10 @@ class RenderProcess:
             self._process.kill()
         self._process.wait()
         self._replies.close()
+        if os.environ.get("ISOSIMTF_DEBUG"):
+            self._errors.seek(0)
+            sys.stderr.write(self._errors.read().decode("utf-8", "replace"))
+        self._errors.close()
 
     def __enter__(self) -> RenderProcess:
         return self
