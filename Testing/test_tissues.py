@@ -8,8 +8,13 @@ import pytest
 
 from IsoSimilarityTFLib import TransferFunctionDesign, design_transfer_function
 from IsoSimilarityTFLib.tissues import (
+    _EM_ITERATIONS,
+    _EM_TOLERANCE,
+    _MIXEL_FRACTIONS,
     TissueHierarchy,
     _agglomerate,
+    _em_step,
+    _mixing_matrix,
     _ward,
     choose_intensity_model,
     contiguous_assignment,
@@ -283,3 +288,78 @@ def test_no_model_beats_the_likelihood_bound(seed):
     share = counts / counts.sum()
     sharp = float(share[counts > 0] @ np.log(density[counts > 0] / counts.sum()))
     assert bound - 0.05 < sharp <= bound
+
+
+def reference_em_step(x, w, mixing, means, variance, weights):
+    """One EM step written out: every component's weighted normal density, the responsibilities, their sums."""
+    k = means.size
+    density = weights * np.exp(-0.5 * (x[:, None] - mixing @ means) ** 2 / variance) / np.sqrt(2 * np.pi * variance)
+    total = np.maximum(density.sum(axis=1), 1e-300)
+    responsibility = density * (w / total)[:, None]
+    mass = responsibility.sum(axis=0)
+    normal = (mixing.T * mass) @ mixing + 1e-12 * np.eye(k)
+    means = np.sort(np.linalg.solve(normal, (x @ responsibility) @ mixing))
+    variance = float(((x[:, None] - means) ** 2 * responsibility[:, :k]).sum() / max(mass[:k].sum(), 1e-12))
+    if k > 1:
+        f = _MIXEL_FRACTIONS.size
+        mass[k:] = mass[k:].reshape(k - 1, f).mean(axis=1).repeat(f)
+    return float(w @ np.log(total)), means, variance, mass
+
+
+def reference_fit(counts, means, min_sd=0.5):
+    """:func:`fit_intensity_model`'s loop with :func:`reference_em_step`: the means, sd and log-likelihood."""
+    x = np.flatnonzero(counts).astype(np.float64)
+    w = counts[counts > 0] / counts.sum()
+    k = means.size
+    f = _MIXEL_FRACTIONS.size
+    means = np.sort(means)
+    sd = max(float(np.sqrt(w @ (x - w @ x) ** 2)) / (2 * k), min_sd)
+    weights = np.concatenate(
+        [np.full(k, 0.9 / k) if k > 1 else np.ones(1), np.full((k - 1) * f, 0.1 / f / max(k - 1, 1))]
+    )
+    log_likelihood = -np.inf
+    for _ in range(_EM_ITERATIONS):
+        likelihood, means, variance, weights = reference_em_step(x, w, _mixing_matrix(k), means, sd**2, weights)
+        sd = max(np.sqrt(variance), min_sd)
+        improved, log_likelihood = likelihood - log_likelihood, likelihood
+        if improved < _EM_TOLERANCE:
+            break
+    return means, sd, log_likelihood
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_em_step_equals_the_written_out_step(seed):
+    """The fast step (expanded square, exponents below 1e-304 as 0, moments as one product) moves a model where the
+    written-out step does, to rounding: models near the histogram's k-means, some components without weight. (Far
+    from every bin, where the densities are below 1e-300, the two differ: both are then meaningless.)"""
+    rng = np.random.default_rng(seed)
+    counts = histogram(rng.uniform(10, 245, 4), rng.uniform(0.5, 12), rng.integers(50, 50000, 4), seed=seed)
+    x = np.flatnonzero(counts).astype(np.float64)
+    w = counts[counts > 0] / counts.sum()
+    powers = np.stack((x * x, x, np.ones_like(x)), axis=1)
+    for k in range(1, 9):
+        mixing = _mixing_matrix(k)
+        means = np.sort(kmeans_1d(np.arange(256.0), counts, k) + rng.normal(0, 5, k))
+        weights = rng.dirichlet(np.ones(mixing.shape[0]))
+        weights[rng.random(weights.size) < 0.1] = 0.0
+        for variance in (1.0, 16.0, rng.uniform(1.0, 400.0)):
+            fast = _em_step(powers, w, mixing, means, variance, weights)
+            slow = reference_em_step(x, w, mixing, means, variance, weights.copy())
+            assert fast[0] == pytest.approx(slow[0], rel=1e-12)
+            np.testing.assert_allclose(fast[1], slow[1], rtol=0, atol=1e-6)  # bins
+            assert fast[2] == pytest.approx(slow[2], rel=1e-7)  # (x - mean)**2 magnifies the means' rounding
+            np.testing.assert_allclose(fast[3], slow[3], rtol=0, atol=1e-7)  # shares of the voxels
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_fit_equals_the_written_out_fit(seed):
+    """Whole fits (up to 200 steps, not always converged) end where the written-out steps end, to 1e-7."""
+    rng = np.random.default_rng(seed)
+    counts = histogram(rng.uniform(20, 230, 4), rng.uniform(1, 10), rng.integers(1000, 50000, 4), seed=seed)
+    for k in (1, 3, 6):
+        start = kmeans_1d(np.arange(256.0), counts, k)
+        model = fit_intensity_model(counts, start)
+        means, sd, log_likelihood = reference_fit(counts, start)
+        np.testing.assert_allclose(model.means, means, rtol=0, atol=1e-7)
+        assert model.sd == pytest.approx(sd, abs=1e-7)
+        assert model.log_likelihood == pytest.approx(log_likelihood, abs=1e-12)
