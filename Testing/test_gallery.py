@@ -9,6 +9,7 @@ from test_look import make_classes
 from IsoSimilarityTFLib import design_transfer_function
 from IsoSimilarityTFLib.design import TransferFunctionDesign
 from IsoSimilarityTFLib.gallery import LOOK_NAMES, LookContext, check_look, class_shares, make_look
+from IsoSimilarityTFLib.look import SHOWN_PLACE, ramp_colors
 from IsoSimilarityTFLib.roles import RULES, class_roles, dense_classes
 from IsoSimilarityTFLib.visibility import Preview
 from isosimtf.phantom import head_phantom
@@ -311,8 +312,17 @@ def test_every_look_of_the_gallery_keeps_its_promise(name):
     values, spacing = _panel_volume(name)
     design = design_transfer_function(values, spacing)
     assert len(design.looks) >= 3
+    dark_end = luma(ramp_colors(np.array([SHOWN_PLACE]))[0])
     for look in design.looks:
         assert design.check_look(look.name) == [], look.name
+        if look.name != "classes":  # the palette look: one distinct colour per class, some of them dark
+            shown = np.array(look.colors)[np.array(look.visible)]
+            assert luma(shown.T).min() >= dark_end - 1e-9, look.name  # no shown structure in the ramp's dark end
+
+
+def luma(rgb):
+    """BT.601 luma of ``(3, ...)`` RGB in 0..1."""
+    return 0.299 * rgb[0] + 0.587 * rgb[1] + 0.114 * rgb[2]
 
 
 # The first click for thin structures alone --------------------------------------------------------------------------

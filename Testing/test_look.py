@@ -7,6 +7,7 @@ from IsoSimilarityTFLib import TransferFunctionDesign, design_transfer_function
 from IsoSimilarityTFLib.classes import IsovalueClass
 from IsoSimilarityTFLib.look import (
     RAMP,
+    SHOWN_PLACE,
     default_look,
     dense_tail,
     detect_kind,
@@ -206,6 +207,15 @@ def test_tissue_colours_follow_intensity_and_are_shared_by_their_classes():
     assert not look.visible[0] and all(look.visible[1:])
     distinct = default_look(classes, tissue_of, np.arange(6.0), "mr", colors="distinct", noise_sd=0.2).colors
     assert distinct[1] == distinct[2] and distinct[1] != distinct[3]
+
+
+def test_no_shown_tissue_takes_the_dark_end_of_the_ramp():
+    classes = make_classes([1000, 300, 200, 100])
+    look = default_look(classes, np.arange(4), np.arange(4.0), "mr", noise_sd=0.2)
+    assert look.colors[1] == pytest.approx(list(ramp_colors(np.array([SHOWN_PLACE]))[0]))  # the lowest shown: tan
+    assert look.colors[3] == [1.0, 1.0, 1.0]
+    middle = ramp_colors(np.array([SHOWN_PLACE + (1.0 - SHOWN_PLACE) * 0.5]))[0]  # halfway in value, halfway up
+    assert look.colors[2] == pytest.approx(list(middle))
 
 
 def test_a_large_bright_tissue_ends_at_ivory_not_white():

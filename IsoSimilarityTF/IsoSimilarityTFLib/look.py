@@ -26,7 +26,8 @@ the same tissues, the same opacities and the same picture.
    drawn as black contour lines and hidden bins stay hidden.
 
 Colours follow one ramp ordered by intensity (dark red -> tan -> ivory -> white), placed by mean value between the
-lowest shown tissue and the densest real one: one colour per tissue, so neighbouring classes never read as rainbow
+lowest shown tissue (at tan, :data:`SHOWN_PLACE`: no shown structure takes the dark end, which reads as a shadow)
+and the densest real one: one colour per tissue, so neighbouring classes never read as rainbow
 rings; on CT (``kind`` ``"ct"``) each class at its own mean, continuous as in the CT presets. White is kept for a
 densest tissue that is a tail (at most :attr:`.LookRules.white_share` of the largest tissue's voxels: bone, contrast):
 a large bright tissue (white matter) ends at ivory, or the headlight washes it out. The qualitative palette stays
@@ -54,6 +55,10 @@ RAMP = (
     (0.75, (0.94, 0.88, 0.74)),
     (1.00, (1.00, 1.00, 1.00)),
 )
+#: Where the lowest shown tissue's colour lies: tan, the colour MR-Default gives a head's skin and CT-AAA the soft
+#: parts it shows. Below it the ramp's dark red is left to nothing shown: a structure there reads as a shadow (the
+#: small vessels of an angiogram, all skin, were drawn dark red at 0.3x the brightness of every preset).
+SHOWN_PLACE = 0.4
 #: Where a large bright tissue's colour ends: ivory (see the module notes).
 IVORY_PLACE = 0.75
 #: Rounds of the visibility step; each sets the clearing factor from the transmittance measured, so 4 suffice.
@@ -296,8 +301,9 @@ def default_look(
         end = 1.0 if tail or len(anchors) == 1 else IVORY_PLACE
 
         def ramp_at(value: float) -> list[float]:
-            place = end * (value - low) / (high - low) if high > low else end
-            return [float(v) for v in ramp_colors(np.array([min(place, end)]))[0]]
+            share = (value - low) / (high - low) if high > low else 1.0
+            place = SHOWN_PLACE + (end - SHOWN_PLACE) * min(max(share, 0.0), 1.0)
+            return [float(v) for v in ramp_colors(np.array([place]))[0]]
 
         for t in foreground:
             tissue_color[t] = ramp_at(tissue_value[t])
