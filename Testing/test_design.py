@@ -280,11 +280,15 @@ def _set(path, value):
 @pytest.mark.parametrize(
     "path, value, reason",
     [
-        (("classes", 1, "opacity"), 7.0, "opacity must be in"),
-        (("classes", 1, "color"), [0.5, 5.0, 0.5], "color must be three numbers"),
+        (("classes", 1, "opacity"), 7.0, "opacity must be a number in"),
+        (("classes", 1, "opacity"), "0.5", "opacity must be a number in"),
+        (("tissues", 0, "opacity"), True, "opacity must be a number in"),
+        (("classes", 1, "color"), [True, 0.5, 0.5], "color must be a number in"),
+        (("labels", 0), True, "labels must be class ids"),
+        (("classes", 1, "color"), [0.5, 5.0, 0.5], "color must be a number in"),
         (("classes", 1, "visible"), "no", "visible must be true or false"),
         (("tissues", 0, "visible"), 1, "visible must be true or false"),
-        (("tissues", 0, "opacity"), -0.5, "opacity must be in"),
+        (("tissues", 0, "opacity"), -0.5, "opacity must be a number in"),
         (("classes", 1, "voxels"), -4, "voxel counts cannot be negative"),
         (("value_range",), [100.0, -100.0], "low < high"),
         (("value_range",), [3.0, 3.0], "low < high"),

@@ -79,8 +79,8 @@ class IsovalueClass:
             isovalue_bins=[int(b) for b in data["isovalue_bins"]],
             value_ranges=[[float(lo), float(hi)] for lo, hi in data["value_ranges"]],
             exemplar_bin=int(data["exemplar_bin"]),
-            color=[float(c) for c in data["color"]],
-            opacity=float(data["opacity"]),
+            color=[_unit_number(c, "color") for c in data["color"]],
+            opacity=_unit_number(data["opacity"], "opacity"),
             visible=_flag(data["visible"], "visible"),
             background=_flag(data["background"], "background"),
             background_contact=float(data.get("background_contact", 0.0)),
@@ -92,6 +92,14 @@ def _flag(value: object, name: str) -> bool:
     if not isinstance(value, bool):
         raise ValueError(f"{name} must be true or false; got {value!r}")
     return value
+
+
+def _unit_number(value: object, name: str) -> float:
+    """A number in [0, 1] (a colour component, an opacity); not a text or a flag, which ``float`` would take."""
+    numeric = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+    if not numeric or not 0.0 <= float(value) <= 1.0:
+        raise ValueError(f"{name} must be a number in [0, 1]; got {value!r}")
+    return float(value)
 
 
 def runs(sorted_bins: np.ndarray) -> list[tuple[int, int]]:

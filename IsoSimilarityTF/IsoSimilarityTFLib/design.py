@@ -12,7 +12,7 @@ from typing import Callable, Optional, Union
 
 import numpy as np
 
-from .classes import IsovalueClass, _flag, build_classes, planes_read, runs
+from .classes import IsovalueClass, _flag, _unit_number, build_classes, planes_read, runs
 from .clustering import FALLBACK_DAMPINGS, cluster_isovalues, unconverged_advice
 from .errors import ClusteringError
 from .gallery import GalleryLook, LookContext, check_look, first_look_name, gallery, make_look
@@ -91,8 +91,8 @@ class Tissue:
             classes=[int(c) for c in data["classes"]],
             voxels=int(data["voxels"]),
             value_ranges=[[float(lo), float(hi)] for lo, hi in data["value_ranges"]],
-            color=[float(c) for c in data["color"]],
-            opacity=float(data["opacity"]),
+            color=[_unit_number(c, "color") for c in data["color"]],
+            opacity=_unit_number(data["opacity"], "opacity"),
             visible=_flag(data["visible"], "visible"),
             background=_flag(data.get("background", False), "background"),
             picture_share=None if data.get("picture_share") is None else float(data["picture_share"]),
@@ -460,6 +460,8 @@ class TransferFunctionDesign:
         """
         try:
             n_bins = int(OPTIONS["n_bins"].check(data["n_bins"]))
+            if not all(isinstance(x, int) and not isinstance(x, bool) for x in data["labels"]):
+                raise ValueError("labels must be class ids (integers)")
             labels = np.asarray(data["labels"], dtype=np.intp)
             classes = sorted((IsovalueClass.from_dict(c) for c in data["classes"]), key=lambda c: c.id)
             if labels.shape != (n_bins,) or [c.id for c in classes] != list(range(len(classes))):
@@ -594,14 +596,11 @@ def _apply_edit(
     visible: Optional[bool],
 ) -> None:
     if color is not None:
-        color = [float(c) for c in color]
-        if len(color) != 3 or not all(0.0 <= c <= 1.0 for c in color):
+        if isinstance(color, str) or len(color) != 3:
             raise ValueError(f"color must be three numbers in [0, 1]; got {color!r}")
-        target.color = color
+        target.color = [_unit_number(c, "color") for c in color]
     if opacity is not None:
-        if not 0.0 <= float(opacity) <= 1.0:
-            raise ValueError(f"opacity must be in [0, 1]; got {opacity!r}")
-        target.opacity = float(opacity)
+        target.opacity = _unit_number(opacity, "opacity")
     if visible is not None:
         if not isinstance(visible, (bool, np.bool_)):  # bool("no") is True: a plausible wrong answer
             raise ValueError(f"visible must be True or False; got {visible!r}")
