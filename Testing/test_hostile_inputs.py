@@ -144,6 +144,24 @@ def test_a_zarr_chunk_that_is_not_a_regular_file_is_refused(tmp_path: Path, chun
     assert f"its file '{last}'{link} is not a regular file (a FIFO, socket or device)" in err
 
 
+@pytest.mark.parametrize("emptied", [True, False])
+def test_a_zarr_chunk_replaced_by_a_folder_is_refused_not_read_as_fill(tmp_path: Path, capfd, emptied: bool) -> None:
+    """Before: zarr read the chunk as missing, i.e. as the fill value, and the design ran (exit 0). A folder that
+    still holds a file is a store's own layout and is read."""
+    zarr = pytest.importorskip("zarr")
+    store = tmp_path / "v.zarr"
+    zarr.create_array(str(store), data=_values(), chunks=(3, NJ, NI))
+    last = max(p for p in store.rglob("*") if p.is_file() and p.name not in ("zarr.json", ".zarray", ".zgroup"))
+    if emptied:
+        last.unlink()
+        last.mkdir()
+        assert f"its folder '{last}' is empty" in _refused(store, tmp_path, capfd)
+    else:
+        (store / "notes").mkdir()
+        (store / "notes" / "readme.txt").write_text("kept beside the array")
+        assert _run(store, tmp_path, capfd)[0] == 0
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # 2. A VTK image whose extent does not start at 0
 # ---------------------------------------------------------------------------------------------------------------

@@ -371,7 +371,9 @@ def _ome_geometry(path: Path, multiscale: dict) -> tuple[tuple[float, ...], tupl
 
 def _check_store_files(store: Path) -> None:
     """Refuse a Zarr store holding anything but regular files and folders (links followed), before zarr opens any:
-    it opens chunks by name, and a chunk that is a FIFO waits forever, one linked to ``/dev/zero`` never ends."""
+    it opens chunks by name, and a chunk that is a FIFO waits forever, one linked to ``/dev/zero`` never ends. An empty
+    folder is refused too: zarr writes a folder only to hold chunks or metadata, and reads a chunk replaced by a
+    folder as missing, i.e. as the fill value (a plausible wrong volume)."""
     seen = set()
     for folder, subfolders, files in os.walk(store, followlinks=True):
         real = os.path.realpath(folder)
@@ -379,6 +381,8 @@ def _check_store_files(store: Path) -> None:
             subfolders.clear()
             continue
         seen.add(real)
+        if not files and not subfolders and Path(folder) != store:
+            raise cannot_read(store, f"its folder '{folder}' is empty: where zarr looks for a chunk or metadata")
         for name in files:
             regular_file(store, Path(folder) / name, "its file")
 
