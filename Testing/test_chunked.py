@@ -84,6 +84,27 @@ def test_a_volume_in_memory_is_binned_a_slab_at_a_time(monkeypatch, planes, star
     np.testing.assert_array_equal(mapped.values, expected)
 
 
+def test_the_survey_keeps_no_slab_alive():
+    """Before: the survey's sample was a strided view of each slab, which kept every row of a dask volume in memory
+    (a 1024^3 volume read lazily peaked at 2.4 GB)."""
+    import weakref
+
+    read, alive = [], []
+
+    class Rows(VolumeSource):
+        def slabs(self, overlap=False):
+            for first in range(0, self.shape[0], 4):
+                alive.append(sum(ref() is not None for ref in read[:-1]))  # rows before the one just surveyed
+                row = np.array(self.values[first : first + 4])  # a fresh array per row, as dask gives
+                read.append(weakref.ref(row))
+                yield first, row
+                del row
+
+    survey = survey_volume(Rows(blob_volume(np.int16)), sample_voxels=2000)
+    assert survey.sample.size > 0 and len(read) > 2
+    assert alive == [0] * len(read)
+
+
 @pytest.mark.parametrize("crossing,normalization", RULES)
 def test_similarity_of_chunked_bins_is_bit_identical(crossing, normalization):
     quantized = quantize(blob_volume(), 48)

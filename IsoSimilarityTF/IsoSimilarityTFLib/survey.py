@@ -107,7 +107,9 @@ def survey_volume(
     for first, slab in source.slabs():
         if tap is not None:
             tap(first, slab)
-        samples.append(slab[(-first) % step :: step, ::step, ::step])
+        # A copy: a strided view would keep the whole slab alive, and so every row of a dask volume (measured:
+        # a 768^3 uint16 volume read lazily peaked at 1168 MB in the survey with views, 460 MB with copies).
+        samples.append(slab[(-first) % step :: step, ::step, ::step].copy())
         if small:
             histogram += _value_histogram(slab)
         else:
