@@ -177,13 +177,10 @@ class _MappedSource(VolumeSource):
         starts = list(range(0, self.shape[0], planes))
         if len(starts) > 1 and self.shape[0] - starts[-1] < 2:
             starts.pop()  # no slab one plane thick, as a dask volume's thin chunks are merged (_merge_thin_chunks)
-        previous = None
-        for first, end in zip(starts, [*starts[1:], self.shape[0]]):
-            slab = self._function(self._source[first:end])
-            if overlap and previous is not None:
-                yield first - 1, np.concatenate((previous, slab[:1]))
-            yield first, slab
-            previous = slab[-1:].copy()
+        rows = (
+            (first, self._function(self._source[first:end])) for first, end in zip(starts, [*starts[1:], self.shape[0]])
+        )
+        yield from _with_borders(rows, overlap)
 
     def map_slabs(self, function: Callable[[np.ndarray], np.ndarray], dtype) -> VolumeSource:
         inner = self._function
@@ -208,18 +205,30 @@ def _dask_slabs(volume, overlap: bool) -> Iterator[Slab]:
     from concurrent.futures import ThreadPoolExecutor
 
     starts = [int(first) for first in np.cumsum((0, *volume.chunks[0]))]
-    with ThreadPoolExecutor(1) as reader:
-        pending = reader.submit(np.asarray, volume[starts[0] : starts[1]])
-        previous = None
-        for k, first in enumerate(starts[:-1]):
-            row = pending.result()
-            if k + 2 < len(starts):
-                pending = reader.submit(np.asarray, volume[starts[k + 1] : starts[k + 2]])
-            if overlap and previous is not None:
-                yield first - 1, np.concatenate((previous, row[:1]))
-            yield first, row
-            previous = row[-1:].copy()
-            del row  # let the row go before the next one is waited for
+
+    def rows() -> Iterator[Slab]:
+        with ThreadPoolExecutor(1) as reader:
+            pending = reader.submit(np.asarray, volume[starts[0] : starts[1]])
+            for k, first in enumerate(starts[:-1]):
+                row = pending.result()
+                if k + 2 < len(starts):
+                    pending = reader.submit(np.asarray, volume[starts[k + 1] : starts[k + 2]])
+                yield first, row
+                del row  # let the row go before the next one is waited for
+
+    yield from _with_borders(rows(), overlap)
+
+
+def _with_borders(rows: Iterator[Slab], overlap: bool) -> Iterator[Slab]:
+    """The consecutive ``rows`` and, with ``overlap``, before each row but the first the two planes of its border
+    (the previous row's last plane, kept, and its first), for the unit cells across it."""
+    previous = None
+    for first, row in rows:
+        if overlap and previous is not None:
+            yield first - 1, np.concatenate((previous, row[:1]))
+        yield first, row
+        previous = row[-1:].copy()
+        del row  # let the row go before the next one is read
 
 
 # Parts per worker of a map-reduce over a dask volume: one (the similarity's parts return tables of n_bins ** 2
