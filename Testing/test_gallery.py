@@ -279,6 +279,28 @@ def test_the_thin_structures_promise_is_the_thin_share(margin, kept):
     assert (broken == []) is kept
 
 
+def test_the_thin_structures_take_the_colour_of_the_structure_not_the_ramps_low_end():
+    """The twigs context with a dense centre in its core: the ramp runs from the core (tan) to the centre (white)."""
+    context = twigs_context()
+    bins = context.preview.bins.copy()
+    z, y, x = np.indices(bins.shape) - (bins.shape[0] - 1) / 2
+    bins[np.sqrt(x**2 + y**2 + z**2) < 4] = 45
+    labels = np.select([np.arange(50) < 5, np.arange(50) < 25, np.arange(50) < 40], [0, 1, 2], 3)
+    voxels = np.bincount(labels[bins.ravel()], minlength=4)
+    class_bins = np.array([0.0, 15.0, 35.0, 45.0])
+    context = LookContext.build(
+        classes=make_classes(voxels.tolist(), contact=[1.0, 1.0, 0.1, 0.0]), tissue_of_class=np.arange(4),
+        class_values=class_bins, class_bins=class_bins, labels=labels, noise_sd=1.0,
+        preview=Preview(bins, (5.0, 5.0, 5.0), 50), kind="mr",
+    )  # fmt: skip
+    assert context.roles == ["background", "rim", "bulk", "dense"]
+    default = make_look("outer-surface", context)
+    look = make_look("thin-structures", context)
+    assert default.colors[1] == default.colors[2] != default.colors[3]  # the twigs at the ramp's low end
+    assert look.visible[1] and look.colors[1] == look.colors[3] == default.colors[3]
+    assert look.colors[2] == default.colors[2]  # the rest keeps its colour
+
+
 def test_check_look_finds_fog_shown_and_the_densest_tissue_hidden_and_a_falling_ramp():
     context = shell_context()
     look = make_look("all-tissues", context)

@@ -15,8 +15,8 @@ name                what it shows                                            off
                     a brain's cortex: MR-Default's look)
 ``see-through``     the dense parts look, with the bulk around them kept at   a class is ``dense`` and another
                     :attr:`.LookRules.see_through` of the picture            ``bulk``
-``thin-structures`` the rim shown as structure: small vessels, twigs; the    a real share of the voxels is ``rim``
-                    rest cleared until the rim gives
+``thin-structures`` the rim shown as structure, in its colour: small       a real share of the voxels is ``rim``
+                    vessels, twigs; the rest cleared until the rim gives
                     :attr:`.LookRules.thin_share` of the picture (a
                     plant's twigs, not its pot)
 ``all-tissues``     every tissue, on the presets' monotone ramp              two tissues or more
@@ -384,9 +384,9 @@ def _see_through(context: LookContext) -> Made:
 
 def _thin_structures(context: LookContext) -> Made:
     """The rim as structure (from ``rules.thin_opacity`` at its lowest class up to the densest shown opacity, by
-    intensity) over the default look, everything else made clearer until the rim gives ``rules.thin_share`` of the
-    picture (:func:`_cleared_around`): twigs are thin and sparse, and a pot left as the default look has it takes
-    the picture of them."""
+    intensity, in the densest shown class's colour) over the default look, everything else made clearer until the
+    rim gives ``rules.thin_share`` of the picture (:func:`_cleared_around`): twigs are thin and sparse, and a pot
+    left as the default look has it takes the picture of them."""
     rim = context.of_role("rim")
     voxels = np.array([c.voxels for c in context.classes], dtype=np.float64)
     foreground = ~context.of_role("background", "fog")
@@ -401,6 +401,10 @@ def _thin_structures(context: LookContext) -> Made:
     rim_ids = np.flatnonzero(rim)[order]
     opacities[rim_ids] = np.maximum(opacities[rim_ids], ramp)
     visible = np.array(visible) | rim
+    # Shown as structure, the rim takes the structure's colour (the densest shown class's): the ramp's low end would
+    # draw small vessels and twigs as the dim skin of something else.
+    densest = int(np.flatnonzero(visible)[np.argmax(context.class_bins[visible])])
+    colors = [list(colors[densest]) if is_rim else color for color, is_rim in zip(colors, rim)]
     if context.preview is not None:
         cleared = _cleared_around(context, rim, opacities, visible, context.rules.thin_share, 0.0)
         if cleared is not None:
