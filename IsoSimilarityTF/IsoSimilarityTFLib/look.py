@@ -48,10 +48,12 @@ from .options import COLOR_SCHEMES, GRADIENT_OPACITY, KINDS  # noqa: F401 (GRADI
 from .roles import RULES, tissue_mean_bins
 from .visibility import Preview, enclosure, first_met, visibility_histogram
 
-# Tissue colour ramp, low to high intensity: dark red, tan, ivory, white (our own anchors, in 0..1).
+# Tissue colour ramp, low to high intensity: dark red, tan, ivory, white (in 0..1). The tan is MR-Default's colour
+# at 120, where a T1 head's skin lies: a redder tan read as brown, noisy where a surface is speckled by noise (a
+# clinical head MRI at 0.7x MR-Default's brightness, 1.6-2.0x its colour noise).
 RAMP = (
     (0.00, (0.50, 0.10, 0.06)),
-    (0.40, (0.80, 0.50, 0.32)),
+    (0.40, (0.78, 0.61, 0.38)),
     (0.75, (0.94, 0.88, 0.74)),
     (1.00, (1.00, 1.00, 1.00)),
 )
