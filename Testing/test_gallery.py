@@ -8,7 +8,15 @@ from test_look import make_classes
 
 from IsoSimilarityTFLib import design_transfer_function
 from IsoSimilarityTFLib.design import TransferFunctionDesign
-from IsoSimilarityTFLib.gallery import LOOK_NAMES, LookContext, check_look, class_shares, make_look
+from IsoSimilarityTFLib.gallery import (
+    LOOK_NAMES,
+    GalleryLook,
+    LookContext,
+    broken_shares,
+    check_look,
+    class_shares,
+    make_look,
+)
 from IsoSimilarityTFLib.look import SHOWN_PLACE, ramp_colors
 from IsoSimilarityTFLib.roles import RULES, class_roles, dense_classes
 from IsoSimilarityTFLib.visibility import Preview
@@ -207,6 +215,17 @@ def test_check_look_measures_the_promised_share_on_both_sides():
     assert any("bulk gives" in failure for failure in check_look(context, opaque))
 
 
+@pytest.mark.parametrize("excess, broken", [(2e-16, False), (1e-6, True)])
+def test_a_share_summing_to_one_with_rounding_keeps_a_promise_up_to_one(excess, broken):
+    # The dense parts of a housing give all the light; the float sum of their shares may exceed 1 by rounding.
+    look = GalleryLook(
+        name="dense-parts", title="", objective="", colors=[[1.0, 1.0, 1.0]] * 3, opacities=[0.0, 0.5, 0.5],
+        visible=[False, True, True], promise={"dense": (RULES.dense_share, 1.0)}, kept={}, monotone=False,
+        class_shares=np.array([0.0, 0.5, 0.5 + excess]),
+    )  # fmt: skip
+    assert (broken_shares(look, ["background", "dense", "dense"]) == ["dense"]) is broken
+
+
 def test_check_look_measures_the_light_kept_on_both_sides():
     context = shell_context()
     look = make_look("dense-parts", context)
@@ -245,7 +264,7 @@ def test_the_dense_parts_promise_is_the_dense_share(margin, kept):
     assert (broken == []) is kept
 
 
-def twigs_context():
+def twigs_context(rules=RULES):
     """Air (bin 0), a large core (bins 25-39, bulk) that takes the picture of thin twigs (bins 5-24, rim: rods one
     voxel thick touching the air) beside it, as a plant's pot beside its branches."""
     n = 40
@@ -259,7 +278,7 @@ def twigs_context():
     class_bins = np.array([0.0, 15.0, 35.0])
     return LookContext.build(
         classes=classes, tissue_of_class=np.arange(3), class_values=class_bins, class_bins=class_bins,
-        labels=labels, noise_sd=1.0, preview=Preview(bins, (5.0, 5.0, 5.0), 40), kind="mr",
+        labels=labels, noise_sd=1.0, preview=Preview(bins, (5.0, 5.0, 5.0), 40), kind="mr", rules=rules,
     )  # fmt: skip
 
 
@@ -277,6 +296,16 @@ def test_the_thin_structures_promise_is_the_thin_share(margin, kept):
     moved = _with_share(context, look, rim, bulk, RULES.thin_share + margin)
     broken = [failure for failure in check_look(context, moved) if "rim gives" in failure]
     assert (broken == []) is kept
+
+
+@pytest.mark.parametrize("thin_opacity", [0.3, RULES.thin_opacity])
+def test_the_lowest_rim_class_starts_at_the_thin_opacity(thin_opacity):
+    """The twigs (one rim class) get the thin opacity, raised from the default look's (they start hidden there), and
+    keep it: the look clears what is around them, never the rim."""
+    context = twigs_context(dataclasses.replace(RULES, thin_opacity=thin_opacity))
+    assert make_look("outer-surface", context).visible[1] is False
+    look = make_look("thin-structures", context)
+    assert look.visible[1] and look.opacities[1] == pytest.approx(thin_opacity)
 
 
 def test_the_thin_structures_take_the_colour_of_the_structure_not_the_ramps_low_end():

@@ -1,5 +1,7 @@
 """The default look: the visibility step, storage invariance, kind detection, colours, ramps, per-mm opacity."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -166,6 +168,16 @@ def test_an_enclosed_dense_tissue_is_seen_through_the_tissue_around_it():
     assert visibility_histogram(preview, opacity)[20:].sum() >= 0.95 * RULES.seen * alone
     # Its partial volume ramps in from 4 noise widths above the soft tissue (bin 14) to the core (bin 20).
     assert look.opacities[13] == look.opacities[10] < look.opacities[16] < look.opacities[19] < look.opacities[20]
+
+
+@pytest.mark.parametrize("ramp_start", [4.5, 6.5])
+def test_the_partial_volume_ramp_starts_ramp_start_noise_widths_above_the_tissue_below(monkeypatch, ramp_start):
+    import IsoSimilarityTFLib.look as look_module
+
+    monkeypatch.setattr(look_module, "RULES", dataclasses.replace(RULES, ramp_start=ramp_start))
+    look = shell_look(Preview(shell_volume(), (1.0, 1.0, 1.0), 40))
+    first = int(np.ceil(10 + ramp_start))  # the soft tissue's mean (bin 10) plus ramp_start noise widths of 1 bin
+    assert look.opacities[first - 1] == look.opacities[10] < look.opacities[first]
 
 
 def test_a_fog_class_next_to_the_background_stays_clear():

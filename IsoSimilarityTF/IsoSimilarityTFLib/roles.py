@@ -67,7 +67,6 @@ class LookRules:
             least share the *see-through* look keeps it at (``1 - see_through[0] / 2``), so that the two looks are
             two pictures, and a soft tissue that one storage keeps and another makes background (HU clipped at
             0) changes the picture little.
-        surface_share: the *outer surface* look promises that the tissue met first gives at least this share.
         see_through: the *see-through* look keeps the enclosing bulk at this share of the picture, ``(low, high)``:
             enough to place the parts inside, little enough to see them.
         thin_rim_share: thin structures: at least this share of the objects' voxels are rim (touch the background):
@@ -95,7 +94,6 @@ class LookRules:
     rim_contact: float = 0.5
     seen: float = 0.8
     dense_share: float = 0.9
-    surface_share: float = 0.5
     see_through: tuple[float, float] = (0.2, 0.4)
     thin_rim_share: float = 0.5
     thin_foreground: float = 0.05
