@@ -180,6 +180,20 @@ def test_the_partial_volume_ramp_starts_ramp_start_noise_widths_above_the_tissue
     assert look.opacities[first - 1] == look.opacities[10] < look.opacities[first]
 
 
+def test_an_enclosed_feature_keeps_the_seen_share_of_its_light_whatever_it_is(monkeypatch):
+    import IsoSimilarityTFLib.look as look_module
+
+    preview = Preview(shell_volume(), (1.0, 1.0, 1.0), 40)
+    kept = {}
+    for seen in (0.6, 0.95):
+        monkeypatch.setattr(look_module, "RULES", dataclasses.replace(RULES, seen=seen))
+        opacity = np.array(shell_look(preview).opacities)
+        alone = visibility_histogram(preview, np.where(np.arange(40) >= 20, opacity, 0.0))[20:].sum()
+        kept[seen] = visibility_histogram(preview, opacity)[20:].sum() / alone
+        assert kept[seen] >= 0.95 * seen
+    assert kept[0.6] < 0.9 < kept[0.95]  # the soft shell is cleared only as far as the rule asks
+
+
 def test_a_fog_class_next_to_the_background_stays_clear():
     # Noise in the air: a class just above the background, touching little of it (it is everywhere in the air).
     classes = make_classes([5000, 400, 3000, 800], contact=[1.0, 0.3, 0.0, 0.0])
