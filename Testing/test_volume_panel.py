@@ -19,6 +19,8 @@ GENERATORS = (
     (panel.synthetic_housing, 48),
     (panel.synthetic_plant, 64),
     (panel.contrast_ct_8bit, 64),
+    (panel.synthetic_abdomen_ct, 64),
+    (panel.synthetic_abdomen_mri, 64),
 )
 
 
@@ -104,6 +106,26 @@ def test_the_8bit_chest_ct_is_windowed_from_hu():
     assert 300 <= blood <= 500
     assert np.median(values[labels == names.index("lungs")]) == 0  # below the window: clipped to 0
     assert values.max() == 255  # cortical bone above the window
+
+
+def test_the_abdomen_ct_is_int32_hu_in_3_mm_slices_on_a_table():
+    values, ijk_to_ras, labels, names, storage = panel.synthetic_abdomen_ct()
+    assert values.dtype == np.int32 and storage == (1.0, 0.0)
+    assert np.allclose(_spacing(ijk_to_ras), (2.5, 2.5, 3.0))
+    medians = {n: np.median(values[labels == names.index(n)]) for n in ("air", "fat", "soft tissue", "bone")}
+    assert medians["air"] < -900 < medians["fat"] < -50 < medians["soft tissue"] < 100 < 200 < medians["bone"]
+    shares = _fractions(labels, names)
+    assert 0.01 < shares["bone"] < 0.05 and shares["table"] > 0.01  # a skeleton, and a table under the body
+
+
+def test_the_abdominal_mri_is_a_thick_slab_with_haze_and_bright_fat():
+    values, ijk_to_ras, labels, names, storage = panel.synthetic_abdomen_mri()
+    assert values.dtype == np.uint16 and storage is None
+    spacing = _spacing(ijk_to_ras)
+    assert spacing[2] >= 2.5 * spacing[0] and values.shape[0] < values.shape[1] / 4  # a slab of thick slices
+    medians = {n: np.median(values[labels == names.index(n)]) for n in names}
+    assert 0 < medians["air"] < 30  # Rician noise: the air is a haze, not zero
+    assert medians["fat"] > medians["organs"] > medians["muscle and bowel"] > medians["air"]
 
 
 def test_the_clipped_storage_is_quantized_in_625_hu_steps():

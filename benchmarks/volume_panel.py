@@ -19,8 +19,10 @@ density instead ("dense" = at least 300 HU, the bone and contrast that CT preset
   Then the kinds users bring that ``../shared/data`` lacks, each built in numpy with its truth:
   :func:`synthetic_angiogram` (vessel trees only, thresholded, 95-99% zeros; large and small vessels),
   :func:`synthetic_specimen` (micro-CT of trabecular bone at 0.05 mm), :func:`synthetic_housing` (industrial CT:
-  steel parts inside an aluminium housing), :func:`synthetic_plant` (a tree in a pot, twigs below a voxel) and
-  :func:`contrast_ct_8bit` (an 8-bit export of a contrast chest CT).
+  steel parts inside an aluminium housing), :func:`synthetic_plant` (a tree in a pot, twigs below a voxel),
+  :func:`contrast_ct_8bit` (an 8-bit export of a contrast chest CT), :func:`synthetic_abdomen_ct` (an abdomen-pelvis
+  CT in int32 HU, 3 mm slices, on its table) and :func:`synthetic_abdomen_mri` (an abdominal T1 slab with coil
+  shading and Rician noise).
 - **The ten real volumes of ../shared/data** (:data:`REAL_VOLUMES`, when the folder is there; never copied into the
   repository): their labels are the README's "band scanned for" as value bands (:func:`band_labels`). A reading, not
   ground truth: the bands come from histograms and slices.
@@ -654,6 +656,135 @@ def contrast_ct_8bit(size: int = 128, seed: int = 0) -> tuple:
     return stored, _grid((step, step, step)), labels, CHEST_LABELS, CHEST_MAP
 
 
+#: The materials of :func:`abdomen_materials`, in label order.
+ABDOMEN_MATERIALS = ("air", "fat", "muscle", "liver", "spleen", "kidney", "bowel", "bowel gas", "aorta",
+                     "cortical bone", "cancellous bone", "disc", "table")  # fmt: skip
+#: synthetic_abdomen_ct's HU per material, and its labels: each material's label.
+ABDOMEN_HU = (-1000.0, -100.0, 50.0, 60.0, 50.0, 35.0, 20.0, -1000.0, 40.0, 800.0, 200.0, 80.0, 150.0)
+ABDOMEN_CT_LABELS = ("air", "fat", "soft tissue", "bone", "table")
+_ABDOMEN_CT_LABEL = (0, 1, 2, 2, 2, 2, 2, 0, 2, 3, 3, 2, 4)
+#: synthetic_abdomen_mri's T1 signal per material (fat and marrow bright, flowing blood and cortical bone dark; the
+#: table gives no signal), and its labels.
+ABDOMEN_T1 = (0.0, 900.0, 300.0, 520.0, 380.0, 430.0, 350.0, 0.0, 120.0, 40.0, 600.0, 250.0, 0.0)
+ABDOMEN_MRI_LABELS = ("air", "fat", "organs", "muscle and bowel", "bone")
+_ABDOMEN_MRI_LABEL = (0, 1, 3, 2, 2, 2, 3, 0, 3, 4, 4, 3, 0)
+
+
+def abdomen_materials(
+    shape: tuple[int, int, int], pixel_mm: float, z_range: tuple[float, float], seed: int = 0
+) -> np.ndarray:
+    """``(nz, ny, nx)`` uint8 indices into :data:`ABDOMEN_MATERIALS` of a synthetic abdomen and pelvis lying on a CT
+    table, sampled at voxel centres: square pixels of ``pixel_mm``, the slices spread evenly over ``z_range``, the
+    (bottom, top) of the volume in mm, from the femoral heads (-150) to the liver's dome (+150).
+
+    The body is an elliptic cylinder 340 x 250 mm (20 mm of subcutaneous fat, an 8 mm muscle wall, visceral fat
+    inside); the liver, spleen and kidneys are ellipsoids; about 25 bowel loops (ellipsoids of 12-22 mm, 40 % with
+    gas inside) fill the lower abdomen; the psoas muscles and the aorta run beside the lumbar spine (vertebral bodies
+    with a 2.5 mm cortex around cancellous bone, discs every 32 mm, posterior arches); below it the sacrum, the
+    iliac wings (curved plates 8 mm thick: two cortices around cancellous bone) and the femoral heads; the table is
+    an 8 mm plate.
+    """
+    nz, ny, nx = shape
+    x = ((np.arange(nx) + 0.5 - nx / 2) * pixel_mm)[None, None, :]
+    y = ((np.arange(ny) + 0.5 - ny / 2) * pixel_mm)[None, :, None]
+    z = (z_range[0] + (np.arange(nz) + 0.5) * (z_range[1] - z_range[0]) / nz)[:, None, None]
+    rng = np.random.default_rng(seed)
+    m = {name: index for index, name in enumerate(ABDOMEN_MATERIALS)}
+    out = np.zeros(shape, dtype=np.uint8)
+
+    def ellipsoid(cx, cy, cz, rx, ry, rz):
+        return ((x - cx) / rx) ** 2 + ((y - cy) / ry) ** 2 + ((z - cz) / rz) ** 2
+
+    def plane(mask):  # a mask of (y, x) extruded along z
+        return np.broadcast_to(mask, shape)
+
+    out[plane((x / 170.0) ** 2 + (y / 125.0) ** 2 < 1.0)] = m["fat"]
+    out[plane((x / 150.0) ** 2 + (y / 105.0) ** 2 < 1.0)] = m["muscle"]
+    out[plane((x / 142.0) ** 2 + (y / 97.0) ** 2 < 1.0)] = m["fat"]
+    out[plane((np.abs(x) < 190.0) & (y > -143.0) & (y < -135.0))] = m["table"]
+    for side in (-1.0, 1.0):
+        out[((x - side * 45.0) / 20.0) ** 2 + ((y + 58.0) / 20.0) ** 2 + 0 * z < 1.0] = m["muscle"]
+    out[ellipsoid(-60.0, 10.0, 95.0, 75.0, 70.0, 60.0) < 1.0] = m["liver"]
+    out[ellipsoid(85.0, -20.0, 95.0, 35.0, 45.0, 40.0) < 1.0] = m["spleen"]
+    for side in (-1.0, 1.0):
+        out[ellipsoid(side * 65.0, -45.0, 40.0, 28.0, 22.0, 50.0) < 1.0] = m["kidney"]
+    for _ in range(25):
+        cx, cy, cz = rng.uniform(-110.0, 110.0), rng.uniform(-30.0, 75.0), rng.uniform(-90.0, 40.0)
+        radius = rng.uniform(12.0, 22.0)
+        loop = ellipsoid(cx, cy, cz, radius, radius * rng.uniform(0.7, 1.0), radius * rng.uniform(1.0, 1.8))
+        free = (out == m["fat"]) & plane((x / 142.0) ** 2 + (y / 97.0) ** 2 < 1.0)
+        out[(loop < 1.0) & free] = m["bowel"]
+        if rng.uniform() < 0.4:
+            out[(loop < 0.36) & (out == m["bowel"])] = m["bowel gas"]
+    out[(np.hypot(x - 15.0, y + 35.0) < 11.0) & (z > -40.0)] = m["aorta"]
+    # The lumbar spine: vertebral bodies with discs, posterior arches; the sacrum, iliac wings and femoral heads.
+    body = plane(np.hypot(x, y + 72.0) < 22.0) & (z > -60.0)
+    disc = np.broadcast_to(np.mod(z, 32.0) < 5.0, shape)
+    out[body] = m["cortical bone"]
+    out[plane(np.hypot(x, y + 72.0) < 19.5) & (z > -60.0) & ~disc] = m["cancellous bone"]
+    out[body & disc] = m["disc"]
+    canal = np.hypot(x, y + 104.0)
+    arch = ((canal >= 9.0) & (canal < 15.0) & (y < -96.0)) | ((np.abs(x) < 4.0) & (y < -115.0) & (y > -128.0))
+    out[plane(arch) & (z > -60.0) & ~disc] = m["cortical bone"]
+    for cx, cy, cz, rx, ry, rz in (
+        (0.0, -85.0, -90.0, 45.0, 20.0, 45.0),  # the sacrum
+        (-90.0, -10.0, -128.0, 24.0, 24.0, 24.0),  # the femoral heads
+        (90.0, -10.0, -128.0, 24.0, 24.0, 24.0),
+    ):
+        distance = np.sqrt(ellipsoid(cx, cy, cz, rx, ry, rz))
+        out[distance < 1.0] = m["cortical bone"]
+        out[distance < 1.0 - 3.0 / min(rx, ry, rz)] = m["cancellous bone"]
+    for side in (-1.0, 1.0):  # the iliac wings: plates 8 mm thick (two 2.5 mm cortices around cancellous bone)
+        rx, ry, rz = 70.0, 60.0, 60.0
+        depth = (1.0 - np.sqrt(ellipsoid(side * 25.0, 20.0, -60.0, rx, ry, rz))) * ry  # mm inside the surface
+        wing = np.broadcast_to((side * x > 40.0) & (y < 10.0), shape) & (z > -115.0) & (z < -25.0)
+        out[wing & (depth >= 0.0) & (depth < 8.0)] = m["cortical bone"]
+        out[wing & (depth >= 2.5) & (depth < 5.5)] = m["cancellous bone"]
+    return out
+
+
+def synthetic_abdomen_ct(size: int = 160, seed: int = 0) -> tuple:
+    """An abdomen-pelvis CT stored as int32 HU in 3 mm slices, on its table (:func:`abdomen_materials`), with ground
+    truth: a 400 mm field of view (2.5 mm pixels at ``size`` 160), 300 mm from the femoral heads to the liver's dome
+    (3 mm slices at ``size`` 160). Blurred 1.2 mm, noise 20 HU. Labels "air" (bowel gas included), "fat", "soft
+    tissue", "bone" (cortical and cancellous), "table", partial volume attributed (:func:`partial_volume`)."""
+    nz = max(int(round(size * 0.625)), 8)
+    spacing = (400.0 / size, 400.0 / size, 300.0 / nz)
+    materials = abdomen_materials((nz, size, size), spacing[0], (-150.0, 150.0), seed)
+    hu_of = np.asarray(ABDOMEN_HU)
+    blur = (1.2 / spacing[2], 1.2 / spacing[1], 1.2 / spacing[0])
+    hu = gaussian_blur(hu_of[materials], blur)
+    hu += np.random.default_rng(seed).normal(0.0, 20.0, hu.shape)
+    stored = np.round(hu).astype(np.int32)
+    label_of = np.asarray(_ABDOMEN_CT_LABEL, dtype=np.uint8)
+    means = np.array([hu_of[list(label_of).index(k)] if k != 3 else 800.0 for k in range(len(ABDOMEN_CT_LABELS))])
+    labels = partial_volume(stored, label_of[materials], means, 20.0, max(blur))
+    return stored, _grid(spacing), labels, ABDOMEN_CT_LABELS, (1.0, 0.0)
+
+
+def synthetic_abdomen_mri(size: int = 160, seed: int = 0) -> tuple:
+    """A T1-weighted abdominal MRI slab, uint16, with ground truth: the anatomy of :func:`abdomen_materials` from the
+    kidneys' lower poles to the liver (24 slices of 6 mm at ``size`` 160, 2.25 mm pixels), fat and marrow bright,
+    the liver above the spleen and kidneys above muscle, flowing blood and cortical bone dark. The receive coils'
+    shading (a smooth gain of 0.7-1.3 across the body), blur 1.5 mm, Rician noise of 12 (the magnitude of complex
+    Gaussian noise: the air is a haze, not zero). Labels "air", "fat", "organs" (liver, spleen, kidneys), "muscle and
+    bowel", "bone"."""
+    nz = max(int(round(size * 0.15)), 6)
+    spacing = (360.0 / size, 360.0 / size, 144.0 / nz)
+    materials = abdomen_materials((nz, size, size), spacing[0], (10.0, 154.0), seed)
+    rng = np.random.default_rng(seed)
+    signal = np.asarray(ABDOMEN_T1)[materials]
+    x = np.linspace(-1.0, 1.0, size)
+    shading = 1.0 + 0.3 * np.outer(np.cos(np.pi * x * 0.8), np.ones(size)) * np.cos(np.pi * x * 0.5)[None, :] - 0.15
+    signal = gaussian_blur(signal * shading[None], (1.5 / spacing[2], 1.5 / spacing[1], 1.5 / spacing[0]))
+    noisy = np.hypot(signal + rng.normal(0.0, 12.0, signal.shape), rng.normal(0.0, 12.0, signal.shape))
+    stored = np.round(noisy).astype(np.uint16)
+    label_of = np.asarray(_ABDOMEN_MRI_LABEL, dtype=np.uint8)
+    means = np.array([0.0, 900.0, 450.0, 330.0, 600.0])
+    labels = partial_volume(stored, label_of[materials], means, 12.0, 1.5 / spacing[0])
+    return stored, _grid(spacing), labels, ABDOMEN_MRI_LABELS, None
+
+
 def _phantom_storage(name: str, size: int = 128, spacing_scale: float = 1.0):
     """The phantom (seed 0) in one of :func:`storages`; ``spacing_scale``: the same voxels with the spacing scaled
     (the labels' partial volume is attributed at the phantom's own blur in voxels, so they do not change)."""
@@ -832,6 +963,10 @@ PANEL: tuple[PanelVolume, ...] = (
                 "air", _always, "synthetic, 1.875 mm"),
     PanelVolume("chest-cta-8bit", "Contrast chest CT, 8-bit export (synthetic)", "CT", contrast_ct_8bit,
                 ("blood pool", "bone"), "air", _always, "synthetic, window 300 / 1400 HU"),
+    PanelVolume("abdomen-ct", "Abdomen-pelvis CT, int32 HU, 3 mm slices (synthetic)", "CT", synthetic_abdomen_ct,
+                ("bone",), "air", _always, "synthetic, on its table"),
+    PanelVolume("abdomen-mri", "Abdominal T1 MRI slab, 6 mm slices (synthetic)", "MRI", synthetic_abdomen_mri,
+                ("organs",), "air", _always, "synthetic, coil shading and Rician noise"),
     *(
         PanelVolume(v.key, v.title, v.kind, real_load(v), v.shown_for, v.fog, _file(v.path),
                     f"../shared/data/{v.key}.nii.gz: {v.source}")
