@@ -49,8 +49,8 @@ from .roles import RULES, tissue_mean_bins
 from .visibility import Preview, enclosure, first_met, visibility_histogram
 
 # Tissue colour ramp, low to high intensity: dark red, tan, ivory, white (in 0..1). The tan is MR-Default's colour
-# at 120, where a T1 head's skin lies: a redder tan read as brown, noisy where a surface is speckled by noise (a
-# clinical head MRI at 0.7x MR-Default's brightness, 1.6-2.0x its colour noise).
+# at 120, where a T1 head's skin lies: a redder tan read as brown, and as colour noise wherever noise speckles a
+# surface (make compare: colour noise fell on every volume with this one).
 RAMP = (
     (0.00, (0.50, 0.10, 0.06)),
     (0.40, (0.78, 0.61, 0.38)),
