@@ -921,6 +921,22 @@ def real_load(volume: RealVolume) -> Callable[[], tuple]:
     return load
 
 
+def clipped_real_load(volume: RealVolume) -> Callable[[], tuple]:
+    """The loader of a real CT in HU re-stored as HU clipped at 0 in 62.5-HU steps (:func:`hu_clipped_quantized`, as
+    the stented aorta's CTA of issue 24 came), its bands read on the original HU."""
+
+    def load():
+        hu, ijk_to_ras = _read(volume.path)
+        hu = np.asarray(hu)
+        labels, names = band_labels(hu, volume.bands)
+        values, storage = hu_clipped_quantized(hu)
+        return values, ijk_to_ras, labels, names, storage
+
+    return load
+
+
+_CTA_CHEST = next(v for v in REAL_VOLUMES if v.key == "cta-chest")
+
 PANEL: tuple[PanelVolume, ...] = (
     *(
         PanelVolume(f"head-ct-{s}", f"Head CT, {s}", "CT", ct_storage(s), ("dense",), None,
@@ -972,6 +988,9 @@ PANEL: tuple[PanelVolume, ...] = (
                     f"../shared/data/{v.key}.nii.gz: {v.source}")
         for v in REAL_VOLUMES
     ),
+    PanelVolume("cta-chest-clipped", "CT angiography of the chest, HU clipped at 0 in 62.5-HU steps (real, re-stored)",
+                "CT", clipped_real_load(_CTA_CHEST), _CTA_CHEST.shown_for, _CTA_CHEST.fog, _file(_CTA_CHEST.path),
+                f"../shared/data/cta-chest.nii.gz, re-stored as a stented aorta's CTA was: {_CTA_CHEST.source}"),
 )  # fmt: skip
 
 #: The HU originals of the re-stored volumes: compare.py has them as ``phantom`` and ``head-ct``; look_panel.py
@@ -991,5 +1010,6 @@ VARIANT_GROUPS: dict[str, tuple[str, ...]] = {
     "head CT clipped at 0 HU": ("head-ct-hu", "head-ct-clipped"),
     "phantom storages": tuple(f"phantom-{s}" for s in ("hu", "uint16", "8bit", "float")),
     "phantom clipped at 0 HU": ("phantom-hu", "phantom-clipped"),
+    "chest CTA clipped at 0 HU": ("cta-chest", "cta-chest-clipped"),
     "phantom voxel size": ("phantom-hu", *(f"phantom-x{scale:g}" for scale in VOXEL_SIZE_SCALES)),
 }
