@@ -703,17 +703,17 @@ def abdomen_materials(
     out[plane((x / 142.0) ** 2 + (y / 97.0) ** 2 < 1.0)] = m["fat"]
     out[plane((np.abs(x) < 190.0) & (y > -143.0) & (y < -135.0))] = m["table"]
     for side in (-1.0, 1.0):
-        out[((x - side * 45.0) / 20.0) ** 2 + ((y + 58.0) / 20.0) ** 2 + 0 * z < 1.0] = m["muscle"]
+        out[plane(((x - side * 45.0) / 20.0) ** 2 + ((y + 58.0) / 20.0) ** 2 < 1.0)] = m["muscle"]
     out[ellipsoid(-60.0, 10.0, 95.0, 75.0, 70.0, 60.0) < 1.0] = m["liver"]
     out[ellipsoid(85.0, -20.0, 95.0, 35.0, 45.0, 40.0) < 1.0] = m["spleen"]
     for side in (-1.0, 1.0):
         out[ellipsoid(side * 65.0, -45.0, 40.0, 28.0, 22.0, 50.0) < 1.0] = m["kidney"]
+    abdomen = plane((x / 142.0) ** 2 + (y / 97.0) ** 2 < 1.0)  # inside the muscle wall
     for _ in range(25):
         cx, cy, cz = rng.uniform(-110.0, 110.0), rng.uniform(-30.0, 75.0), rng.uniform(-90.0, 40.0)
         radius = rng.uniform(12.0, 22.0)
         loop = ellipsoid(cx, cy, cz, radius, radius * rng.uniform(0.7, 1.0), radius * rng.uniform(1.0, 1.8))
-        free = (out == m["fat"]) & plane((x / 142.0) ** 2 + (y / 97.0) ** 2 < 1.0)
-        out[(loop < 1.0) & free] = m["bowel"]
+        out[(loop < 1.0) & (out == m["fat"]) & abdomen] = m["bowel"]
         if rng.uniform() < 0.4:
             out[(loop < 0.36) & (out == m["bowel"])] = m["bowel gas"]
     out[(np.hypot(x - 15.0, y + 35.0) < 11.0) & (z > -40.0)] = m["aorta"]
@@ -757,7 +757,7 @@ def synthetic_abdomen_ct(size: int = 160, seed: int = 0) -> tuple:
     hu += np.random.default_rng(seed).normal(0.0, 20.0, hu.shape)
     stored = np.round(hu).astype(np.int32)
     label_of = np.asarray(_ABDOMEN_CT_LABEL, dtype=np.uint8)
-    means = np.array([hu_of[list(label_of).index(k)] if k != 3 else 800.0 for k in range(len(ABDOMEN_CT_LABELS))])
+    means = np.array([-1000.0, -100.0, 50.0, 800.0, 150.0])  # per label: cortical bone's HU for the bone
     labels = partial_volume(stored, label_of[materials], means, 20.0, max(blur))
     return stored, _grid(spacing), labels, ABDOMEN_CT_LABELS, (1.0, 0.0)
 
@@ -775,7 +775,7 @@ def synthetic_abdomen_mri(size: int = 160, seed: int = 0) -> tuple:
     rng = np.random.default_rng(seed)
     signal = np.asarray(ABDOMEN_T1)[materials]
     x = np.linspace(-1.0, 1.0, size)
-    shading = 1.0 + 0.3 * np.outer(np.cos(np.pi * x * 0.8), np.ones(size)) * np.cos(np.pi * x * 0.5)[None, :] - 0.15
+    shading = 0.85 + 0.3 * np.outer(np.cos(np.pi * x * 0.8), np.cos(np.pi * x * 0.5))
     signal = gaussian_blur(signal * shading[None], (1.5 / spacing[2], 1.5 / spacing[1], 1.5 / spacing[0]))
     noisy = np.hypot(signal + rng.normal(0.0, 12.0, signal.shape), rng.normal(0.0, 12.0, signal.shape))
     stored = np.round(noisy).astype(np.uint16)
@@ -908,28 +908,18 @@ def band_labels(values: np.ndarray, bands: Sequence[Band]) -> tuple[np.ndarray, 
     return labels, ("other", *(name for name, _, _ in bands))
 
 
-def real_load(volume: RealVolume) -> Callable[[], tuple]:
+def real_load(
+    volume: RealVolume, restore: Callable[[np.ndarray], tuple[np.ndarray, tuple[float, float]]] | None = None
+) -> Callable[[], tuple]:
     """The loader of a real volume: its values (NIfTI ``scl_slope`` / ``scl_inter`` applied by the reader), its
-    IJK-to-RAS matrix and the band labels (a reading of the README, not ground truth)."""
+    IJK-to-RAS matrix and the band labels (a reading of the README, not ground truth). ``restore``: stores a CT in HU
+    another way, as ``(values, storage)`` (e.g. :func:`hu_clipped_quantized`); its bands are read on the HU."""
 
     def load():
         values, ijk_to_ras = _read(volume.path)
         values = np.asarray(values)
         labels, names = band_labels(values, volume.bands)
-        return values, ijk_to_ras, labels, names, volume.storage
-
-    return load
-
-
-def clipped_real_load(volume: RealVolume) -> Callable[[], tuple]:
-    """The loader of a real CT in HU re-stored as HU clipped at 0 in 62.5-HU steps (:func:`hu_clipped_quantized`, as
-    the stented aorta's CTA of issue 24 came), its bands read on the original HU."""
-
-    def load():
-        hu, ijk_to_ras = _read(volume.path)
-        hu = np.asarray(hu)
-        labels, names = band_labels(hu, volume.bands)
-        values, storage = hu_clipped_quantized(hu)
+        values, storage = (values, volume.storage) if restore is None else restore(values)
         return values, ijk_to_ras, labels, names, storage
 
     return load
@@ -989,7 +979,8 @@ PANEL: tuple[PanelVolume, ...] = (
         for v in REAL_VOLUMES
     ),
     PanelVolume("cta-chest-clipped", "CT angiography of the chest, HU clipped at 0 in 62.5-HU steps (real, re-stored)",
-                "CT", clipped_real_load(_CTA_CHEST), _CTA_CHEST.shown_for, _CTA_CHEST.fog, _file(_CTA_CHEST.path),
+                "CT", real_load(_CTA_CHEST, hu_clipped_quantized), _CTA_CHEST.shown_for, _CTA_CHEST.fog,
+                _file(_CTA_CHEST.path),
                 f"../shared/data/cta-chest.nii.gz, re-stored as a stented aorta's CTA was: {_CTA_CHEST.source}"),
 )  # fmt: skip
 
