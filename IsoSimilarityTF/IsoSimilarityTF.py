@@ -489,6 +489,8 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
     # Looks -----------------------------------------------------------------------------------------------------------
     def _showLooks(self) -> None:
         """One button per look of the shown design's gallery (made per grouping), with its thumbnail and promise."""
+        from IsoSimilarityTFLib import mrml
+
         design = self.panel.detail_design()
         layout = self.ui.looksButtonsWidget.layout()
         for button in self._lookButtons.values():
@@ -503,13 +505,15 @@ class IsoSimilarityTFWidget(ScriptedLoadableModuleWidget, VTKObservationMixin, P
             count=len(looks)
         )
         chosen = self.panel.look()
+        directions = mrml.ijk_to_ras_directions(self.panel.shown_volume)  # the patient's front, however stored
         for index, look in enumerate(looks):
             button = qt.QToolButton()
             button.text = look.title
             button.checkable = True
             button.toolButtonStyle = qt.Qt.ToolButtonTextUnderIcon
             button.toolTip = look.objective
-            button.setIcon(qt.QIcon(self._pixmapFromArray(design.thumbnail(look, size=LOOK_THUMBNAIL_SIZE))))
+            thumbnail = design.thumbnail(look, size=LOOK_THUMBNAIL_SIZE, directions=directions)
+            button.setIcon(qt.QIcon(self._pixmapFromArray(thumbnail)))
             button.setIconSize(qt.QSize(LOOK_THUMBNAIL_SIZE, LOOK_THUMBNAIL_SIZE))
             button.connect("clicked(bool)", functools.partial(self.onLookClicked, look.name))
             layout.addWidget(button, index // LOOKS_PER_ROW, index % LOOKS_PER_ROW)

@@ -3,6 +3,7 @@
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from IsoSimilarityTFLib.gallery import LOOK_NAMES
@@ -66,3 +67,27 @@ def test_a_linked_looks_folder_is_never_written_through(tmp_path: Path, capfd) -
     (outdir / "looks").symlink_to(elsewhere)
     code, err = _run([*PHANTOM, "-o", outdir], capfd)
     assert code == 2 and "is a symbolic link" in err and not list(elsewhere.iterdir())
+
+
+def test_looks_png_is_seen_from_the_patients_front_however_the_file_stores_the_voxels(
+    tmp_path: Path, capfd, monkeypatch
+) -> None:
+    """A file stored as most DICOM series are (i toward the left, j toward posterior): its thumbnails are rendered
+    with those directions (:mod:`.thumbnails` shows the patient's front with them; read as RAS, the back)."""
+    nrrd = pytest.importorskip("nrrd")
+    from IsoSimilarityTFLib.design import TransferFunctionDesign
+    from isosimtf.phantom import head_phantom
+
+    phantom = head_phantom(24, seed=0)
+    lps = np.diag([-1.0, -1.0, 1.0])
+    header = {"space": "right-anterior-superior", "space directions": lps * np.asarray(phantom.spacing),
+              "space origin": np.zeros(3), "kinds": ["domain"] * 3, "encoding": "raw"}  # fmt: skip
+    nrrd.write(str(tmp_path / "lps.nrrd"), np.ascontiguousarray(phantom.values), header, index_order="C")
+    asked = []
+    original = TransferFunctionDesign.thumbnail
+    monkeypatch.setattr(
+        TransferFunctionDesign, "thumbnail", lambda self, *a, **kw: asked.append(kw) or original(self, *a, **kw)
+    )
+    code, err = _run([tmp_path / "lps.nrrd", "-o", tmp_path / "out", "-q", "--no-render"], capfd)
+    assert code == 0, err
+    assert asked and all(np.allclose(kw["directions"], lps) for kw in asked)

@@ -12,7 +12,9 @@ import types
 from pathlib import Path
 from unittest import mock
 
+import numpy as np
 import pytest
+import vtk
 
 from IsoSimilarityTFLib import mrml
 from IsoSimilarityTFLib.selftest import SPACING, hand_made_design, nested_volume
@@ -525,6 +527,27 @@ def test_apply_designs_with_the_panels_options(panel, module):
     assert (design.n_bins, design.options["levels"], design.options["modality"]) == (32, 2, "mr")
     assert design.options["tissues"] == "auto" and widget.panel.shown_volume is volume and not widget.panel.running
     assert mrml.design_of_volume(volume).to_dict() == design.to_dict()
+
+
+def test_the_look_thumbnails_show_the_patients_front_however_the_volume_is_stored(panel, module, monkeypatch):
+    from IsoSimilarityTFLib.design import TransferFunctionDesign
+
+    widget, volume = panel
+    # Column c: the RAS direction of index axis c. i toward posterior, j toward the right (a sagittal series).
+    stored = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    matrix = vtk.vtkMatrix4x4()
+    for row, column in np.ndindex(3, 3):
+        matrix.SetElement(row, column, stored[row, column])
+    volume.SetIJKToRASDirectionMatrix(matrix)
+    module.qt.QToolButton.side_effect = lambda *args: mock.MagicMock(name="QToolButton")
+    asked = []
+    original = TransferFunctionDesign.thumbnail
+    monkeypatch.setattr(
+        TransferFunctionDesign, "thumbnail", lambda self, *a, **kw: asked.append(kw) or original(self, *a, **kw)
+    )
+    widget.panel.refresh()
+    widget._showLooks()
+    assert asked and all(np.array_equal(kw["directions"], stored) for kw in asked)
 
 
 def test_the_looks_are_drawn_after_the_tree_one_button_each(panel, module):

@@ -272,6 +272,60 @@ def test_the_picture_keeps_the_physical_aspect_centred(shape, spacing, view, wid
     assert abs((rows.min() + rows.max()) / 2 - 47.5) <= 0.5 and abs((cols.min() + cols.max()) / 2 - 47.5) <= 0.5
 
 
+def anatomy():
+    """A shaded preview of a small 'patient' stored as RAS (identity directions), anisotropic, with a differently
+    coloured block on each of its right, anterior and superior sides (bins 2, 3, 4) around a body (bin 1)."""
+    bins = np.zeros((12, 10, 8), dtype=np.uint8)  # k (superior), j (anterior), i (right)
+    bins[2:10, 2:8, 2:6] = 1
+    bins[4:8, 4:6, 6:8] = 2  # right
+    bins[4:8, 8:10, 3:5] = 3  # anterior
+    bins[10:12, 4:6, 3:5] = 4  # superior
+    colors = np.array([[0, 0, 0], [0.8, 0.7, 0.5], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float)
+    return Preview(bins, (1.0, 1.5, 2.0), 5), colors, np.array([0.0, 0.3, 1.0, 1.0, 1.0])
+
+
+def restored(preview, permutation, reversed_axes):
+    """The same anatomy stored another way: array axes permuted (``permutation`` of (k, j, i)) and reversed, with the
+    spacing and the IJK-to-RAS directions that say so."""
+    bins = np.transpose(preview.bins, permutation)
+    bins = bins[tuple(slice(None, None, -1) if axis in reversed_axes else slice(None) for axis in range(3))]
+    directions = np.zeros((3, 3))
+    spacing = []
+    for c in range(3):  # new index axis c (i, j, k) is new array axis 2 - c, old array axis permutation[2 - c]
+        old_index = 2 - permutation[2 - c]  # its RAS direction under the identity
+        directions[old_index, c] = -1.0 if (2 - c) in reversed_axes else 1.0
+        spacing.append(preview.spacing[old_index])
+    return Preview(np.ascontiguousarray(bins), tuple(spacing), preview.n_bins), directions
+
+
+@pytest.mark.parametrize(
+    ("permutation", "reversed_axes"),
+    [((0, 1, 2), (1,)), ((0, 1, 2), (1, 2)), ((2, 1, 0), ()), ((1, 0, 2), (0,)), ((2, 0, 1), (0, 1, 2))],
+)
+@pytest.mark.parametrize("view", VIEWS_ALL_SIX)
+def test_the_picture_does_not_depend_on_how_the_file_stores_the_patient(permutation, reversed_axes, view):
+    preview, colors, opacity = anatomy()
+    expected = render_thumbnail(preview, colors, opacity, unit_distance=1.0, view=view, size=48)
+    stored, directions = restored(preview, permutation, reversed_axes)
+    picture = render_thumbnail(stored, colors, opacity, unit_distance=1.0, view=view, size=48, directions=directions)
+    assert np.abs(picture.astype(int) - expected).max() <= 1  # float32 sums in another axis order
+    # Read as if the file were RAS, the same voxels show another side of the patient.
+    assert np.abs(render_thumbnail(stored, colors, opacity, unit_distance=1.0, view=view, size=48).astype(int)
+                  - expected).max() > 1  # fmt: skip
+
+
+@pytest.mark.parametrize("degrees", [-30.0, 25.0, 44.0])
+def test_an_oblique_volume_is_shown_along_its_nearest_axes(degrees):
+    preview, colors, opacity = anatomy()
+    angle = np.radians(degrees)  # a head turned in the bore, about the superior axis
+    rotation = np.array([[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]])
+    for view in VIEWS:
+        np.testing.assert_array_equal(
+            render_thumbnail(preview, colors, opacity, unit_distance=1.0, view=view, directions=2.0 * rotation),
+            render_thumbnail(preview, colors, opacity, unit_distance=1.0, view=view),
+        )
+
+
 # Validation ---------------------------------------------------------------------------------------------------------
 
 
@@ -291,6 +345,10 @@ def test_the_picture_keeps_the_physical_aspect_centred(shape, spacing, view, wid
         ({"preview": Preview(np.ones((4, 4)), (1.0, 1.0, 1.0), 2)}, "preview.bins"),
         ({"preview": Preview(np.full((4, 4, 4), 2), (1.0, 1.0, 1.0), 2)}, "preview.bins"),
         ({"preview": Preview(np.ones((4, 4, 4), int), (1.0, 0.0, 1.0), 2)}, "preview.spacing"),
+        ({"directions": np.eye(4)}, "directions"),
+        ({"directions": np.diag([1.0, np.nan, 1.0])}, "directions"),
+        ({"directions": np.array([[1.0, 1.0, 0], [0, 0, 0], [0, 0, 1.0]])}, "directions"),  # i and j the same
+        ({"directions": np.diag([1.0, 0.0, 1.0])}, "directions"),
     ],
 )
 def test_bad_input_raises_one_clear_error(change, message):

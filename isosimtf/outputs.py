@@ -186,17 +186,21 @@ def write_looks(result: RunResult) -> None:
         write_atomically(path, lambda temporary, look=look: design.write_vp_json(temporary, look))
         result.record(f"look_{look.name}", path)
     path = outdir / OUTPUT_FILES["looks_png"]
-    write_atomically(path, lambda temporary: write_png(looks_picture(design), temporary))
+    picture = looks_picture(design, directions=result.volume.directions)
+    write_atomically(path, lambda temporary: write_png(picture, temporary))
     result.record("looks_png", path)
 
 
-def looks_picture(design: TransferFunctionDesign, size: int = THUMBNAIL_SIZE) -> np.ndarray:
+def looks_picture(
+    design: TransferFunctionDesign, size: int = THUMBNAIL_SIZE, directions: Optional[np.ndarray] = None
+) -> np.ndarray:
     """The gallery's thumbnails side by side, each with its title and what it promises (the first is the first
-    click, the chosen one marked)."""
+    click, the chosen one marked), seen from the patient's front (``directions``: the volume's ``(3, 3)`` IJK-to-RAS
+    directions, see :meth:`.TransferFunctionDesign.thumbnail`)."""
     chosen = design.look_name or design.looks[0].name
     tiles, labels, swatches = [], [], []
     for look in design.looks:
-        tiles.append(design.thumbnail(look, size=size))
+        tiles.append(design.thumbnail(look, size=size, directions=directions))
         labels.append((f"{look.title}{' (shown)' if look.name == chosen else ''}", look.name))
         shown = [c for c, v in zip(look.colors, look.visible) if v]
         swatches.append(shown[-1] if shown else [0.5, 0.5, 0.5])

@@ -388,13 +388,25 @@ class TransferFunctionDesign:
         """Piecewise-constant control points in volume units (of the classes now, or of a ``look``)."""
         return piecewise_constant(self.edges, *self.bin_looks(look))
 
-    def thumbnail(self, look: Optional[GalleryLook] = None, view: str = "anterior", size: int = 96) -> np.ndarray:
+    def thumbnail(
+        self,
+        look: Optional[GalleryLook] = None,
+        view: str = "anterior",
+        size: int = 96,
+        directions: Optional[np.ndarray] = None,
+    ) -> np.ndarray:
         """``(size, size, 3)`` uint8 picture of the classes now, or of a ``look``, rendered from the preview by the
-        Lib's shaded numpy ray caster (:func:`.thumbnails.render_thumbnail`); black without a preview."""
+        Lib's shaded numpy ray caster (:func:`.thumbnails.render_thumbnail`); black without a preview.
+
+        ``directions``: the volume's ``(3, 3)`` IJK-to-RAS directions (column ``c``: index axis ``c`` = i, j, k), so
+        that ``view`` is the patient's side whichever way the file stores the voxels; None for the identity.
+        """
         if self.preview is None:
             return np.zeros((size, size, 3), dtype=np.uint8)
         colors, opacity = self.bin_looks(look)
-        return render_thumbnail(self.preview, colors, opacity, unit_distance=self.unit_distance, view=view, size=size)
+        return render_thumbnail(
+            self.preview, colors, opacity, unit_distance=self.unit_distance, view=view, size=size, directions=directions
+        )
 
     @property
     def gradient_ramp_top(self) -> Optional[float]:

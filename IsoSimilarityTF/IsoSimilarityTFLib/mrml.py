@@ -318,6 +318,18 @@ def voxel_array(volume_node) -> np.ndarray:
     return numpy_support.vtk_to_numpy(image.GetPointData().GetScalars()).reshape(slices, rows, columns)
 
 
+def ijk_to_ras_directions(volume_node) -> Optional[np.ndarray]:
+    """``(3, 3)`` IJK-to-RAS directions of a volume node (column ``c``: the RAS direction of index axis ``c`` = i, j,
+    k), which :meth:`.TransferFunctionDesign.thumbnail` takes to show the patient's front; None without a node."""
+    if volume_node is None:
+        return None
+    from vtkmodules.vtkCommonMath import vtkMatrix4x4
+
+    matrix = vtkMatrix4x4()
+    volume_node.GetIJKToRASDirectionMatrix(matrix)
+    return np.array([[matrix.GetElement(row, column) for column in range(3)] for row in range(3)])
+
+
 def class_label_volume(volume_node, design: TransferFunctionDesign) -> np.ndarray:
     """Class id per voxel (``[k, j, i]``), from the same quantization as the design's."""
     quantized = quantize(voxel_array(volume_node), design.n_bins, tuple(design.value_range))

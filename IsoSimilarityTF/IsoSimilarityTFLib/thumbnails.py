@@ -18,9 +18,13 @@ neither VTK nor a GPU:
 oracle for :func:`.visibility.visibility_histogram`, which computes it with cumulative sums of logarithms.
 
 Orientation. Arrays are indexed ``[k, j, i]`` (z, y, x) and the spacing is ``(x, y, z)`` in mm, as everywhere in the
-library. The views assume an identity-like IJK-to-RAS matrix: ``i`` increases toward the patient's right, ``j``
-toward anterior, ``k`` toward superior. Each view is what a camera placed on that side of the patient sees, looking
-at the centre (as Slicer's view buttons, not mirrored), with image row 0 at the top:
+library. Which way each index axis points is the volume's IJK-to-RAS directions (``directions``: column ``c`` the
+RAS direction of axis ``c`` = i, j, k; the identity by default, where ``i`` increases toward the patient's right,
+``j`` toward anterior, ``k`` toward superior). Each index axis is taken along the patient's axis it is nearest to
+(an oblique acquisition is shown as the axis-aligned one nearest to it; a NIfTI or DICOM file whose ``j`` runs
+toward posterior still shows the face from the front). Each view is what a camera placed on that side of the
+patient sees, looking at the centre (as Slicer's view buttons, not mirrored), with image row 0 at the top (the table
+for the identity):
 
 =========  ======================  =================  =========================================
 view       camera on, rays toward  picture top        picture left
@@ -39,6 +43,8 @@ bilinearly (the composite, not the bins, so no class is invented).
 """
 
 from collections.abc import Iterable, Sequence
+from itertools import permutations
+from typing import Optional
 
 import numpy as np
 
@@ -76,6 +82,7 @@ def render_thumbnail(
     size: int = 96,
     background: Sequence[float] = (0.0, 0.0, 0.0),
     shading: bool = True,
+    directions: Optional[np.ndarray] = None,
 ) -> np.ndarray:
     """Render the transfer function applied to the preview, seen from one side (orientation in the module notes).
 
@@ -90,12 +97,14 @@ def render_thumbnail(
         size: side of the square picture in pixels (>= 8).
         background: RGB in 0..1 where the rays pass (partly) through and outside the projected volume.
         shading: False composites the bins' colours unshaded (for testing the compositing alone).
+        directions: ``(3, 3)`` IJK-to-RAS directions of the volume the preview was made from (column ``c``: the
+            RAS direction of index axis ``c`` = i, j, k; lengths are ignored); None for the identity.
 
     Returns:
         ``(size, size, 3)`` uint8 RGB picture, row 0 at the top.
 
     Raises:
-        ValueError: on a bad preview, colour or opacity shape, view, size, unit distance or background.
+        ValueError: on a bad preview, colour or opacity shape, view, size, unit distance, background or directions.
     """
     bins, spacing_zyx = _checked_preview(preview)
     opacity = _checked_opacity(bin_opacity, preview.n_bins)
@@ -108,14 +117,15 @@ def render_thumbnail(
     if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < _MIN_SIZE:
         raise ValueError(f"size must be an integer >= {_MIN_SIZE}, got {size!r}")
     _check_unit_distance(unit_distance)
-    (depth_axis, row_axis, col_axis), _ = _layout(view)
+    layout = _layout(view, directions)
+    depth_axis, row_axis, col_axis = layout[0]
 
     # A picture's worth of precision: single precision halves the time of every pass over the preview.
     alpha = _sample_alpha(opacity, spacing_zyx[depth_axis] / unit_distance).astype(np.float32)[bins]
-    rgb = _oriented(np.clip(colors, 0.0, 1.0).astype(np.float32)[bins], view)
+    rgb = _oriented(np.clip(colors, 0.0, 1.0).astype(np.float32)[bins], layout)
     if shading:
-        rgb = rgb * _headlight(opacity.astype(np.float32)[bins], spacing_zyx, view)[..., None]
-    weights, transmittance = _front_to_back(_oriented(alpha, view))
+        rgb = rgb * _headlight(opacity.astype(np.float32)[bins], spacing_zyx, layout)[..., None]
+    weights, transmittance = _front_to_back(_oriented(alpha, layout))
     # The premultiplied colour and the transmittance are resampled, then laid over the background.
     composite = np.concatenate([np.einsum("drc,drck->rck", weights, rgb), transmittance[..., None]], axis=-1)
     picture = _fit(composite, spacing_zyx[row_axis], spacing_zyx[col_axis], int(size))
@@ -154,10 +164,10 @@ def ray_visibility(
         raise ValueError(f"views must be a sequence of view names, got the string {views!r}")
     seen = np.zeros(preview.n_bins)
     for view in views:
-        (depth_axis, _, _), _ = _layout(view)
-        alpha = _sample_alpha(opacity, spacing_zyx[depth_axis] / unit_distance)[bins]
-        weights, _ = _front_to_back(_oriented(alpha, view))
-        seen += np.bincount(_oriented(bins, view).ravel(), weights=weights.ravel(), minlength=preview.n_bins)
+        layout = _layout(view)
+        alpha = _sample_alpha(opacity, spacing_zyx[layout[0][0]] / unit_distance)[bins]
+        weights, _ = _front_to_back(_oriented(alpha, layout))
+        seen += np.bincount(_oriented(bins, layout).ravel(), weights=weights.ravel(), minlength=preview.n_bins)
     return seen
 
 
@@ -189,10 +199,38 @@ def _check_unit_distance(unit_distance: float) -> None:
         raise ValueError(f"unit_distance must be a positive number of mm, got {unit_distance!r}")
 
 
-def _layout(view: str) -> tuple[tuple[int, int, int], tuple[bool, bool, bool]]:
+Layout = tuple[tuple[int, int, int], tuple[bool, bool, bool]]
+
+
+def _layout(view: str, directions: Optional[np.ndarray] = None) -> Layout:
+    """The array axes that become (depth, picture rows, picture columns) for the camera of ``view``, and whether each
+    is reversed, for a preview whose index axes point along ``directions`` (see :func:`render_thumbnail`)."""
     if view not in _LAYOUT:
         raise ValueError(f"unknown view {view!r}; expected one of {', '.join(VIEWS_ALL_SIX)}")
-    return _LAYOUT[view]
+    axes, flips = _LAYOUT[view]
+    if directions is None:
+        return axes, flips
+    # The table's array axes are those of the identity: 0 (k) superior, 1 (j) anterior, 2 (i) right (RAS row 2 - a).
+    carrier, reversed_ = _nearest_axes(directions)
+    return (
+        tuple(carrier[2 - a] for a in axes),  # type: ignore[return-value]
+        tuple(flip != reversed_[2 - a] for a, flip in zip(axes, flips)),  # type: ignore[return-value]
+    )
+
+
+def _nearest_axes(directions: np.ndarray) -> tuple[list[int], list[bool]]:
+    """For each patient axis (R, A, S), the array axis (0 = k, 1 = j, 2 = i) whose index direction is nearest to it,
+    and whether that index runs the other way (toward L, P or I): the axis permutation with the largest summed
+    ``|cosine|``, so every patient axis gets one array axis even when the volume is oblique."""
+    matrix = np.asarray(directions, dtype=np.float64)
+    if matrix.shape != (3, 3) or not np.all(np.isfinite(matrix)):
+        raise ValueError(f"directions must be a finite 3 x 3 matrix (IJK-to-RAS directions), got shape {matrix.shape}")
+    lengths = np.linalg.norm(matrix, axis=0)
+    if np.any(lengths == 0) or abs(np.linalg.det(matrix / np.where(lengths > 0, lengths, 1.0))) < 1e-6:
+        raise ValueError("directions must be three independent IJK-to-RAS directions, got a singular matrix")
+    cosines = matrix / lengths  # [ras, index axis c]
+    order = max(permutations(range(3)), key=lambda p: sum(abs(cosines[ras, c]) for ras, c in enumerate(p)))
+    return [2 - c for c in order], [bool(cosines[ras, c] < 0) for ras, c in enumerate(order)]
 
 
 # -------------------------------------------------------------------------------------------------------- rendering
@@ -203,9 +241,10 @@ def _sample_alpha(opacity: np.ndarray, steps: float) -> np.ndarray:
     return 1.0 - (1.0 - opacity) ** steps
 
 
-def _oriented(volume: np.ndarray, view: str) -> np.ndarray:
-    """A view of ``volume`` (``(nz, ny, nx, ...)``) as ``(depth, rows, columns, ...)`` for the camera of ``view``."""
-    axes, flips = _LAYOUT[view]
+def _oriented(volume: np.ndarray, layout: Layout) -> np.ndarray:
+    """A view of ``volume`` (``(nz, ny, nx, ...)``) as ``(depth, rows, columns, ...)`` for a camera's ``layout``
+    (:func:`_layout`)."""
+    axes, flips = layout
     out = np.transpose(volume, axes + tuple(range(3, volume.ndim)))
     return out[tuple(slice(None, None, -1) if flip else slice(None) for flip in flips)]
 
@@ -234,13 +273,14 @@ def _smoothed(field: np.ndarray) -> np.ndarray:
     return field
 
 
-def _headlight(opacity_field: np.ndarray, spacing_zyx: tuple[float, float, float], view: str) -> np.ndarray:
-    """``(depth, rows, columns)`` shade of each sample of ``view`` (see :func:`_oriented`), lit from the camera."""
+def _headlight(opacity_field: np.ndarray, spacing_zyx: tuple[float, float, float], layout: Layout) -> np.ndarray:
+    """``(depth, rows, columns)`` shade of each sample of a camera's ``layout`` (see :func:`_oriented`), lit from
+    the camera."""
     smooth = _smoothed(opacity_field)
     gradient = [
-        _oriented(np.gradient(smooth, spacing_zyx[axis], axis=axis), view)
+        _oriented(np.gradient(smooth, spacing_zyx[axis], axis=axis), layout)
         if smooth.shape[axis] > 1
-        else np.zeros(_oriented(smooth, view).shape, dtype=smooth.dtype)
+        else np.zeros(_oriented(smooth, layout).shape, dtype=smooth.dtype)
         for axis in range(3)
     ]
     # The normal where the ray enters the voxel, half a voxel toward the camera: at the centre of a shell one voxel
@@ -250,7 +290,7 @@ def _headlight(opacity_field: np.ndarray, spacing_zyx: tuple[float, float, float
     norm = np.sqrt(sum(g * g for g in gradient))
     # A change of opacity per voxel (largest step) below _FLAT of the peak opacity is a homogeneous inside.
     surface = norm * max(spacing_zyx) > _FLAT * max(float(opacity_field.max()), np.finfo(float).tiny)
-    depth_axis = _LAYOUT[view][0][0]
+    depth_axis = layout[0][0]
     facing = np.abs(gradient[depth_axis]) / np.where(surface, norm, 1.0)
     return np.where(surface, AMBIENT + DIFFUSE * facing, 1.0)
 
