@@ -226,9 +226,9 @@ def _nearest_axes(directions: np.ndarray) -> tuple[list[int], list[bool]]:
     if matrix.shape != (3, 3) or not np.all(np.isfinite(matrix)):
         raise ValueError(f"directions must be a finite 3 x 3 matrix (IJK-to-RAS directions), got shape {matrix.shape}")
     lengths = np.linalg.norm(matrix, axis=0)
-    if np.any(lengths == 0) or abs(np.linalg.det(matrix / np.where(lengths > 0, lengths, 1.0))) < 1e-6:
+    cosines = matrix / np.where(lengths > 0, lengths, 1.0)  # [ras, index axis c]
+    if abs(np.linalg.det(cosines)) < 1e-6:  # a zero column leaves a zero column: singular too
         raise ValueError("directions must be three independent IJK-to-RAS directions, got a singular matrix")
-    cosines = matrix / lengths  # [ras, index axis c]
     order = max(permutations(range(3)), key=lambda p: sum(abs(cosines[ras, c]) for ras, c in enumerate(p)))
     return [2 - c for c in order], [bool(cosines[ras, c] < 0) for ras, c in enumerate(order)]
 
