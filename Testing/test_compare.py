@@ -230,6 +230,14 @@ def test_verdict_applies_the_issue_targets():
     assert compare.ratio(2.0, 4.0) == 0.5 and compare.ratio(1.0, 0.0) is None
 
 
+def test_no_colour_noise_ratio_over_a_grey_picture():
+    # Slicer's window/level ramp is grey: its colour noise is float rounding, and a ratio over it means nothing.
+    compare = _load("compare")
+    assert compare.ratio(0.49, 1.7e-16, compare.GREY_NOISE) is None
+    assert compare.ratio(0.49, compare.GREY_NOISE, compare.GREY_NOISE) is None
+    assert compare.ratio(0.5, 2 * compare.GREY_NOISE, compare.GREY_NOISE) == pytest.approx(25.0)
+
+
 def test_partial_volume_voxel_shows_the_tissue_that_raised_its_value():
     # One row: air, an air voxel raised by the skin, soft tissue, a soft-tissue voxel raised by the skull, skull
     # (a skull voxel lowered by soft tissue stays skull).

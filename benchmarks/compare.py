@@ -83,6 +83,9 @@ BEST_LOOK = "best look"
 #: The issue's targets, against the best-suited preset of each volume and view.
 MAX_NOISE_RATIO = 1.3
 MIN_BRIGHTNESS_RATIO = 0.8
+#: A picture whose colour noise is at most this (chroma units) is grey (Slicer's window/level ramp measures 1e-16,
+#: the rounding of the chroma matrix): no colour-noise ratio is taken over it.
+GREY_NOISE = 0.01
 
 CT_PRESETS = ("CT-AAA", "CT-Bone")
 MR_PRESETS = ("MR-Default",)
@@ -359,9 +362,9 @@ def montage(
 # ---------------------------------------------------------------------------------------------------------------
 
 
-def ratio(ours: float, reference: float) -> float | None:
-    """``ours / reference``, None when the reference is 0."""
-    return float(ours / reference) if reference else None
+def ratio(ours: float, reference: float, floor: float = 0.0) -> float | None:
+    """``ours / reference``, None when the reference is at most ``floor`` (0, or :data:`GREY_NOISE`)."""
+    return float(ours / reference) if reference > floor else None
 
 
 def verdict(brightness_ratio: float | None, noise_ratio: float | None) -> bool:
@@ -420,7 +423,7 @@ def run_case(case: PanelVolume, presets: PresetsSource, size: int, gpu: bool, ba
             reference = metrics[(view, name)]
             b, n = (
                 ratio(ours["brightness"], reference["brightness"]),
-                ratio(ours["colour_noise"], reference["colour_noise"]),
+                ratio(ours["colour_noise"], reference["colour_noise"], GREY_NOISE),
             )
             per_reference[name] = {"brightness_ratio": b, "colour_noise_ratio": n, "pass": verdict(b, n)}
         comparisons[view] = per_reference
