@@ -308,6 +308,14 @@ def test_the_lowest_rim_class_starts_at_the_thin_opacity(thin_opacity):
     assert look.visible[1] and look.opacities[1] == pytest.approx(thin_opacity)
 
 
+@pytest.mark.parametrize("opacity_high", [0.3, RULES.opacity_high])
+def test_the_first_click_follows_the_contexts_rules(opacity_high):
+    """The default look under every other (the outer surface here) reads the context's rules, not the module's: the
+    core, the one shown tissue, takes the ramp's top."""
+    look = make_look("outer-surface", twigs_context(dataclasses.replace(RULES, opacity_high=opacity_high)))
+    assert look.visible[2] and look.opacities[2] == pytest.approx(opacity_high)
+
+
 def test_the_thin_structures_take_the_colour_of_the_structure_not_the_ramps_low_end():
     """The twigs context with a dense centre in its core: the ramp runs from the core (tan) to the centre (white)."""
     context = twigs_context()

@@ -143,13 +143,15 @@ def shell_volume(n=40, noise=0.0, seed=0):
     return np.clip(np.round(bins), 0, 39).astype(np.intp)
 
 
-def shell_look(preview, kind="ct"):
+def shell_look(preview, kind="ct", rules=RULES):
     """One class per bin; tissues air (bins 0-4, class 0 the background), soft (5-19), dense (20-39)."""
     voxels = np.bincount(shell_volume().ravel(), minlength=40)
     classes = make_classes(voxels.tolist())
     tissue_of = np.select([np.arange(40) < 5, np.arange(40) < 20], [0, 1], 2)
     bins = np.arange(40.0)
-    return default_look(classes, tissue_of, bins, kind, labels=np.arange(40), class_bins=bins, preview=preview)
+    return default_look(
+        classes, tissue_of, bins, kind, labels=np.arange(40), class_bins=bins, preview=preview, rules=rules
+    )
 
 
 def test_an_enclosed_dense_tissue_is_seen_through_the_tissue_around_it():
@@ -171,23 +173,18 @@ def test_an_enclosed_dense_tissue_is_seen_through_the_tissue_around_it():
 
 
 @pytest.mark.parametrize("ramp_start", [4.5, 6.5])
-def test_the_partial_volume_ramp_starts_ramp_start_noise_widths_above_the_tissue_below(monkeypatch, ramp_start):
-    import IsoSimilarityTFLib.look as look_module
-
-    monkeypatch.setattr(look_module, "RULES", dataclasses.replace(RULES, ramp_start=ramp_start))
-    look = shell_look(Preview(shell_volume(), (1.0, 1.0, 1.0), 40))
+def test_the_partial_volume_ramp_starts_ramp_start_noise_widths_above_the_tissue_below(ramp_start):
+    rules = dataclasses.replace(RULES, ramp_start=ramp_start)
+    look = shell_look(Preview(shell_volume(), (1.0, 1.0, 1.0), 40), rules=rules)
     first = int(np.ceil(10 + ramp_start))  # the soft tissue's mean (bin 10) plus ramp_start noise widths of 1 bin
     assert look.opacities[first - 1] == look.opacities[10] < look.opacities[first]
 
 
-def test_an_enclosed_feature_keeps_the_seen_share_of_its_light_whatever_it_is(monkeypatch):
-    import IsoSimilarityTFLib.look as look_module
-
+def test_an_enclosed_feature_keeps_the_seen_share_of_its_light_whatever_it_is():
     preview = Preview(shell_volume(), (1.0, 1.0, 1.0), 40)
     kept = {}
     for seen in (0.6, 0.95):
-        monkeypatch.setattr(look_module, "RULES", dataclasses.replace(RULES, seen=seen))
-        opacity = np.array(shell_look(preview).opacities)
+        opacity = np.array(shell_look(preview, rules=dataclasses.replace(RULES, seen=seen)).opacities)
         alone = visibility_histogram(preview, np.where(np.arange(40) >= 20, opacity, 0.0))[20:].sum()
         kept[seen] = visibility_histogram(preview, opacity)[20:].sum() / alone
         assert kept[seen] >= 0.95 * seen

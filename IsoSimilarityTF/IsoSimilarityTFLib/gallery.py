@@ -276,6 +276,7 @@ def _default(context: LookContext, kind: str) -> Made:
             preview=context.preview,
             colors=context.colors,
             max_classes=context.max_classes,
+            rules=context.rules,
         )
     look = context._defaults[key]
     return [list(c) for c in look.colors], list(look.opacities), list(look.visible)

@@ -45,7 +45,7 @@ import numpy as np
 
 from .classes import PALETTE, IsovalueClass
 from .options import COLOR_SCHEMES, GRADIENT_OPACITY, KINDS  # noqa: F401 (GRADIENT_OPACITY: still importable here)
-from .roles import RULES, tissue_mean_bins
+from .roles import RULES, LookRules, tissue_mean_bins
 from .visibility import Preview, enclosure, first_met, visibility_histogram
 
 # Tissue colour ramp, low to high intensity: dark red, tan, ivory, white (in 0..1). The tan is MR-Default's colour
@@ -74,6 +74,7 @@ def detect_kind(
     noise_sd: float,
     modality: Optional[str] = None,
     encloses: Optional[Callable[[int, int], float]] = None,
+    rules: LookRules = RULES,
 ) -> str:
     """The kind of volume: ``"ct"`` (a density scan) or ``"mr"`` (any other scalar), or the caller's hint.
 
@@ -91,6 +92,7 @@ def detect_kind(
         modality: the caller's hint, or None.
         encloses: ``encloses(outer, inner)``: share of the rays through both tissues (indices into the lists) that
             meet ``outer`` first (:func:`.visibility.enclosure`); None skips that test.
+        rules: the thresholds.
     """
     if modality is not None:
         normalized = str(modality).strip().lower()
@@ -101,7 +103,7 @@ def detect_kind(
         if normalized in KINDS:
             return normalized
         raise ValueError(f"modality must be CT, MR or one of {KINDS}; got {modality!r}")
-    return "ct" if dense_tail(tissue_means, tissue_voxels, noise_sd, encloses) else "mr"
+    return "ct" if dense_tail(tissue_means, tissue_voxels, noise_sd, encloses, rules) else "mr"
 
 
 def dense_tail(
@@ -109,6 +111,7 @@ def dense_tail(
     tissue_voxels: Sequence[float],
     noise_sd: float,
     encloses: Optional[Callable[[int, int], float]] = None,
+    rules: LookRules = RULES,
 ) -> list[int]:
     """Indices of the tissues that form a CT's dense tail (see :func:`detect_kind`), ascending."""
     means = np.asarray(tissue_means, dtype=np.float64)
@@ -116,11 +119,11 @@ def dense_tail(
     if means.size < 2:
         return []
     largest = int(np.argmax(voxels))
-    if voxels[largest + 1 :].sum() > RULES.tail_share * voxels[largest]:
+    if voxels[largest + 1 :].sum() > rules.tail_share * voxels[largest]:
         return []  # brighter tissues as large as the main one (white matter, a T1's fat and brain): no tail
-    real = voxels >= RULES.real_share * voxels.sum()
+    real = voxels >= rules.real_share * voxels.sum()
     candidates = np.flatnonzero(
-        real & (means >= means[largest] + RULES.dense_separation * noise_sd) & (voxels < voxels[largest])
+        real & (means >= means[largest] + rules.dense_separation * noise_sd) & (voxels < voxels[largest])
     )
     return [int(t) for t in candidates if encloses is None or encloses(largest, int(t)) > 0.5]
 
@@ -205,6 +208,7 @@ def default_look(
     preview: Optional[Preview] = None,
     colors: str = "ramp",
     max_classes: int = 15,
+    rules: LookRules = RULES,
 ) -> Look:
     """Colour, opacity and visibility of every class (see the module notes).
 
@@ -220,6 +224,7 @@ def default_look(
         colors: ``"ramp"`` (one ramp colour per tissue) or ``"distinct"`` (one palette colour per tissue, by size).
         max_classes: tissues are shown whole, the largest first, while they hold at most this many classes (the
             densest real tissue always, besides them).
+        rules: the thresholds.
     """
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {KINDS}; got {kind!r}")
@@ -230,7 +235,7 @@ def default_look(
     voxels = np.array([c.voxels for c in classes], dtype=np.float64)
     contact = np.array([c.background_contact for c in classes])
     is_background = np.array([c.background for c in classes])
-    tissue_of_class = fringe_cores_apart(np.asarray(tissue_of_class), contact, voxels, is_background)
+    tissue_of_class = fringe_cores_apart(np.asarray(tissue_of_class), contact, voxels, is_background, rules)
     n_tissues = int(tissue_of_class.max()) + 1 if tissue_of_class.size else 0
     tissue_voxels = np.bincount(tissue_of_class, weights=voxels, minlength=n_tissues)
     tissue_contact = np.bincount(tissue_of_class, weights=voxels * contact, minlength=n_tissues) / np.maximum(
@@ -248,14 +253,14 @@ def default_look(
     inner = [
         t
         for t in foreground
-        if tissue_contact[t] <= RULES.rim_contact and tissue_bin[t] - background_bin >= RULES.fog_separation * noise_sd
+        if tissue_contact[t] <= rules.rim_contact and tissue_bin[t] - background_bin >= rules.fog_separation * noise_sd
     ] or foreground
     classes_in = np.bincount(tissue_of_class, minlength=n_tissues)
     shown: set[int] = set()
     for t in sorted(inner, key=lambda t: (-tissue_voxels[t], t)):
         if sum(classes_in[s] for s in shown) + classes_in[t] <= max_classes:
             shown.add(t)
-    real = [t for t in foreground if share[t] >= RULES.real_share]
+    real = [t for t in foreground if share[t] >= rules.real_share]
     if real:
         shown.add(max(real, key=lambda t: tissue_bin[t]))
     shown_sorted = sorted(shown, key=lambda t: tissue_bin[t])
@@ -264,19 +269,19 @@ def default_look(
     tissue_opacity = np.zeros(n_tissues)
     for rank, t in enumerate(shown_sorted):
         place = rank / (len(shown_sorted) - 1) if len(shown_sorted) > 1 else 1.0
-        tissue_opacity[t] = RULES.opacity_low + (RULES.opacity_high - RULES.opacity_low) * place
+        tissue_opacity[t] = rules.opacity_low + (rules.opacity_high - rules.opacity_low) * place
     for t in foreground:
         if t not in shown:
-            tissue_opacity[t] = RULES.opacity_low  # what a user who shows it starts from
+            tissue_opacity[t] = rules.opacity_low  # what a user who shows it starts from
     shares = None
     if preview is not None and labels is not None and shown_sorted:
-        step = _VisibilityStep(preview, labels, tissue_of_class, shown_sorted, tissue_bin, noise_sd)
-        real_shown = [t for t in shown_sorted if share[t] >= RULES.real_share]
+        step = _VisibilityStep(preview, labels, tissue_of_class, shown_sorted, tissue_bin, noise_sd, rules)
+        real_shown = [t for t in shown_sorted if share[t] >= rules.real_share]
         if kind == "ct":
             ordered = np.array(foreground)
             dense = dense_tail(
                 tissue_bin[ordered], tissue_voxels[ordered], noise_sd,
-                lambda a, b: enclosure(preview, step.tissue_of_bin, int(ordered[a]), int(ordered[b])),
+                lambda a, b: enclosure(preview, step.tissue_of_bin, int(ordered[a]), int(ordered[b])), rules,
             )  # fmt: skip
             features = [int(ordered[i]) for i in dense] or real_shown[-1:]
             tissue_opacity = step.show_features(tissue_opacity, features)
@@ -299,7 +304,7 @@ def default_look(
         top = max(real, key=lambda t: tissue_bin[t]) if real else anchors[-1]
         high = tissue_value[top]
         largest = max(anchors, key=lambda t: tissue_voxels[t])
-        tail = top != largest and tissue_voxels[top] <= RULES.white_share * tissue_voxels[largest]
+        tail = top != largest and tissue_voxels[top] <= rules.white_share * tissue_voxels[largest]
         end = 1.0 if tail or len(anchors) == 1 else IVORY_PLACE
 
         def ramp_at(value: float) -> list[float]:
@@ -329,7 +334,11 @@ def default_look(
 
 
 def fringe_cores_apart(
-    tissue_of_class: np.ndarray, contact: np.ndarray, voxels: np.ndarray, is_background: np.ndarray
+    tissue_of_class: np.ndarray,
+    contact: np.ndarray,
+    voxels: np.ndarray,
+    is_background: np.ndarray,
+    rules: LookRules = RULES,
 ) -> np.ndarray:
     """``(n_classes,)`` the tissue of each class as the look decides it: a fringe tissue (more than
     :attr:`.LookRules.rim_contact` of its voxels touch the background) whose densest classes do not touch it is two, its
@@ -340,16 +349,17 @@ def fringe_cores_apart(
     Args:
         tissue_of_class: ``(n_classes,)`` tissue per class (classes in intensity order, tissues runs of them).
         contact: ``(n_classes,)`` background contact. voxels: ``(n_classes,)``. is_background: ``(n_classes,)``.
+        rules: the thresholds.
     """
     out = np.empty_like(tissue_of_class)
     next_id = 0
     for tissue in range(int(tissue_of_class.max()) + 1 if tissue_of_class.size else 0):
         members = np.flatnonzero(tissue_of_class == tissue)
         weight = voxels[members].sum()
-        fringe = weight > 0 and (voxels[members] * contact[members]).sum() / weight > RULES.rim_contact
+        fringe = weight > 0 and (voxels[members] * contact[members]).sum() / weight > rules.rim_contact
         first_core = members.size
         if fringe and not is_background[members].any():
-            while first_core > 0 and contact[members[first_core - 1]] <= RULES.rim_contact:
+            while first_core > 0 and contact[members[first_core - 1]] <= rules.rim_contact:
                 first_core -= 1
         if 0 < first_core < members.size:
             out[members[:first_core]], out[members[first_core:]] = next_id, next_id + 1
@@ -386,6 +396,7 @@ class _VisibilityStep:
         shown: the shown tissues (the others stay clear).
         tissue_bin: ``(n_tissues,)`` mean bin of each tissue.
         noise_sd: noise width in bins.
+        rules: the thresholds.
     """
 
     def __init__(
@@ -396,6 +407,7 @@ class _VisibilityStep:
         shown: list[int],
         tissue_bin: np.ndarray,
         noise_sd: float,
+        rules: LookRules = RULES,
     ) -> None:
         self.preview = preview
         self.labels = np.asarray(labels)
@@ -405,6 +417,7 @@ class _VisibilityStep:
         self.shown = np.isin(np.arange(self.n_tissues), shown)
         self.tissue_bin = tissue_bin
         self.noise_sd = float(noise_sd)
+        self.rules = rules
         self.rays = preview.rays_crossing(self.tissue_of_bin, self.n_tissues)
         # Partial volume of a feature: (first bin, lower tissue, feature) where its ramp starts (see show_features).
         self.ramps: list[tuple[int, int, int]] = []
@@ -458,9 +471,9 @@ class _VisibilityStep:
         opacity = opacity.copy()
         alone = np.where(np.arange(self.n_tissues) == tissue, opacity, 0.0)
         seen = self.light(alone)[tissue] / max(self.rays[tissue], 1)
-        if 0 < seen < RULES.seen and opacity[tissue] > 0:
+        if 0 < seen < self.rules.seen and opacity[tissue] > 0:
             thickness = np.log1p(-seen) / np.log1p(-opacity[tissue])
-            opacity[tissue] = min(1.0, -np.expm1(np.log1p(-RULES.seen) / thickness))
+            opacity[tissue] = min(1.0, -np.expm1(np.log1p(-self.rules.seen) / thickness))
         return opacity
 
     def show_features(self, opacity: np.ndarray, features: list[int]) -> np.ndarray:
@@ -477,12 +490,12 @@ class _VisibilityStep:
             lower = [
                 int(o)
                 for o in shown
-                if self.tissue_bin[f] - self.tissue_bin[o] >= RULES.dense_separation * self.noise_sd
+                if self.tissue_bin[f] - self.tissue_bin[o] >= self.rules.dense_separation * self.noise_sd
             ]
             if lower:
                 apart[f] = lower
                 below = max(lower, key=lambda o: self.tissue_bin[o])
-                start = int(np.ceil(self.tissue_bin[below] + RULES.ramp_start * self.noise_sd))
+                start = int(np.ceil(self.tissue_bin[below] + self.rules.ramp_start * self.noise_sd))
                 self.ramps.append((start, below, f))
         alone = {}
         for f, lower in apart.items():
@@ -494,9 +507,9 @@ class _VisibilityStep:
             factor = np.ones(self.n_tissues)
             for f, lower in apart.items():
                 kept = light[f] / alone[f] if alone[f] > 0 else 1.0
-                if kept < RULES.seen:
+                if kept < self.rules.seen:
                     # The lower tissues' transmittance T in front of f: scaling their opacity by s gives about T ** s.
-                    factor[lower] = np.minimum(factor[lower], np.log(RULES.seen) / np.log(max(kept, 1e-12)))
+                    factor[lower] = np.minimum(factor[lower], np.log(self.rules.seen) / np.log(max(kept, 1e-12)))
             if np.all(factor >= 1.0):
                 break
             opacity = opacity * factor
