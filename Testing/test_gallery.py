@@ -17,9 +17,9 @@ from IsoSimilarityTFLib.gallery import (
     class_shares,
     make_look,
 )
-from IsoSimilarityTFLib.look import SHOWN_PLACE, ramp_colors
+from IsoSimilarityTFLib.look import SHOWN_PLACE, bin_opacity_of, ramp_colors
 from IsoSimilarityTFLib.roles import RULES, class_roles, dense_classes
-from IsoSimilarityTFLib.visibility import Preview
+from IsoSimilarityTFLib.visibility import Preview, visibility_histogram
 from isosimtf.phantom import head_phantom
 
 # Roles: each threshold on both sides of its boundary -----------------------------------------------------------------
@@ -190,7 +190,7 @@ def test_the_thumbnail_shows_the_look(phantom_design):
 # The oracle on both sides of each promise ----------------------------------------------------------------------------
 
 
-def shell_context():
+def shell_context(rules=RULES):
     """Air (bin 0), a soft shell (bins 10-19, bulk) around a dense core (bins 30-39)."""
     n = 40
     z, y, x = np.indices((n, n, n)) - (n - 1) / 2
@@ -202,8 +202,80 @@ def shell_context():
     class_bins = np.array([0.0, 15.0, 35.0])
     return LookContext.build(
         classes=classes, tissue_of_class=np.arange(3), class_values=class_bins, class_bins=class_bins,
-        labels=labels, noise_sd=1.0, preview=Preview(bins, (5.0, 5.0, 5.0), 40), kind="ct",
+        labels=labels, noise_sd=1.0, preview=Preview(bins, (5.0, 5.0, 5.0), 40), kind="ct", rules=rules,
     )  # fmt: skip
+
+
+def lesion_context(kind, rules=RULES):
+    """Air (bin 0), a brain (bin 15, bulk) around a bright lesion (bin 30) with a brighter centre (bin 37): both
+    dense, three tissues on the ramp, so the lesion starts below its top."""
+    n = 40
+    z, y, x = np.indices((n, n, n)) - (n - 1) / 2
+    r = np.sqrt(x**2 + y**2 + z**2)
+    bins = np.select([r < 4, r < 6, r < 17], [37, 30, 15], 0).astype(np.intp)
+    labels = np.select([np.arange(40) < 5, np.arange(40) < 22, np.arange(40) < 34], [0, 1, 2], 3)
+    voxels = np.bincount(labels[bins.ravel()], minlength=4)
+    class_bins = np.array([0.0, 15.0, 30.0, 37.0])
+    return LookContext.build(
+        classes=make_classes(voxels.tolist()), tissue_of_class=np.arange(4), class_values=class_bins,
+        class_bins=class_bins, labels=labels, noise_sd=1.0, preview=Preview(bins, (5.0, 5.0, 5.0), 40), kind=kind,
+        rules=rules,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("opacity_high", [0.4, RULES.opacity_high])
+def test_the_dense_parts_of_other_data_are_raised_to_the_ramps_top(opacity_high):
+    """A FLAIR's lesion: the outer surface (the brain) leaves it in the ramp's middle; the dense-parts look shows it,
+    and its brighter centre, as surfaces at the ramp's top."""
+    context = lesion_context("mr", dataclasses.replace(RULES, opacity_high=opacity_high))
+    assert context.roles == ["background", "bulk", "dense", "dense"]
+    assert make_look("outer-surface", context).opacities[2] < 0.9 * opacity_high
+    look = make_look("dense-parts", context)
+    assert look.opacities[2] == pytest.approx(opacity_high) and look.opacities[3] == pytest.approx(opacity_high)
+
+
+@pytest.mark.parametrize("opacity_high", [0.4, RULES.opacity_high])
+def test_the_see_through_look_shows_every_dense_part_as_a_surface(opacity_high):
+    """On CT-like data the dense-parts look clears the lesion in front of its brighter centre (a tissue 4 noise
+    widths below a feature); seen through the bulk, both are surfaces at the ramp's top."""
+    context = lesion_context("ct", dataclasses.replace(RULES, opacity_high=opacity_high))
+    assert make_look("dense-parts", context).opacities[2] < 0.1 * opacity_high
+    look = make_look("see-through", context)
+    assert look.opacities[2] == pytest.approx(opacity_high) and look.opacities[3] == pytest.approx(opacity_high)
+
+
+def light_of(context, opacities, visible):
+    """``(n_classes,)`` light each class sends to the eye over the preview's six views."""
+    bin_opacity = bin_opacity_of(np.where(visible, opacities, 0.0), context.labels, context.noise_sd)
+    light = visibility_histogram(context.preview, bin_opacity)
+    return np.bincount(context.labels, weights=light, minlength=len(context.classes))
+
+
+@pytest.mark.parametrize("dense_share, seen, kept_binds", [(0.3, 0.8, False), (0.9, 0.8, False), (0.5, 0.95, True)])
+def test_the_dense_parts_look_clears_the_bulk_only_as_far_as_its_aims(dense_share, seen, kept_binds):
+    """The bulk is made clearer until the dense parts give ``dense_share`` of the picture and keep ``seen`` of their
+    light, and no further: whichever aim binds lands within a few hundredths above it."""
+    context = shell_context(dataclasses.replace(RULES, dense_share=dense_share, seen=seen))
+    look = make_look("dense-parts", context)
+    dense = context.of_role("dense")
+    opacities, visible = np.asarray(look.opacities), np.asarray(look.visible)
+    share = float(look.class_shares[dense].sum())
+    kept = light_of(context, opacities, visible)[dense].sum() / light_of(context, opacities, dense)[dense].sum()
+    assert share >= dense_share and kept >= seen
+    if kept_binds:
+        assert kept <= seen + 0.02
+    else:
+        assert share <= dense_share + 0.05
+
+
+@pytest.mark.parametrize("name", ["all-tissues", "classes"])
+@pytest.mark.parametrize("low, high", [(0.05, 0.4), (RULES.opacity_low, RULES.opacity_high)])
+def test_every_tissue_and_every_class_run_up_the_ramp_from_its_low_end_to_its_top(name, low, high):
+    """Brain, lesion and centre (one class each): the presets' monotone ramp, by rank of intensity."""
+    context = lesion_context("mr", dataclasses.replace(RULES, opacity_low=low, opacity_high=high))
+    look = make_look(name, context)
+    assert look.visible == [False, True, True, True]
+    assert look.opacities == pytest.approx([0.0, low, (low + high) / 2, high])
 
 
 def test_check_look_measures_the_promised_share_on_both_sides():
@@ -296,6 +368,22 @@ def test_the_thin_structures_promise_is_the_thin_share(margin, kept):
     moved = _with_share(context, look, rim, bulk, RULES.thin_share + margin)
     broken = [failure for failure in check_look(context, moved) if "rim gives" in failure]
     assert (broken == []) is kept
+
+
+@pytest.mark.parametrize("thin_share", [RULES.thin_share, 0.7])
+def test_the_thin_structures_look_clears_the_rest_only_as_far_as_the_thin_share(thin_share):
+    context = twigs_context(dataclasses.replace(RULES, thin_share=thin_share))
+    look = make_look("thin-structures", context)
+    assert thin_share <= float(look.class_shares[context.of_role("rim")].sum()) <= thin_share + 0.05
+
+
+@pytest.mark.parametrize("factor, offered", [(0.95, True), (1.05, False)])
+def test_thin_structures_are_offered_when_the_rim_is_a_real_share_of_the_voxels(factor, offered):
+    """The twigs are 4.4 % of the voxels that are not background: a look of their own where that is a real share."""
+    voxels = np.array([c.voxels for c in twigs_context().classes], dtype=float)
+    rim_share = voxels[1] / voxels[1:].sum()
+    context = twigs_context(dataclasses.replace(RULES, real_share=factor * rim_share))
+    assert (make_look("thin-structures", context) is not None) is offered
 
 
 @pytest.mark.parametrize("thin_opacity", [0.3, RULES.thin_opacity])
