@@ -438,6 +438,18 @@ def test_check_look_finds_fog_shown_and_the_densest_tissue_hidden_and_a_falling_
     assert any("background or fog shown" in failure for failure in check_look(context, background))
 
 
+@pytest.mark.parametrize("factor, must_show", [(0.95, True), (1.05, False)])
+def test_check_look_wants_the_densest_tissue_shown_when_it_holds_a_real_share(factor, must_show):
+    """The lesion's brighter centre holds 1.4 % of the voxels that are not background: hiding it breaks a look's
+    promise where that is a real share, and the lesion is then the densest tissue that must be shown."""
+    voxels = np.array([c.voxels for c in lesion_context("mr").classes], dtype=float)
+    rules = dataclasses.replace(RULES, real_share=factor * voxels[3] / voxels[1:].sum())
+    context = lesion_context("mr", rules)
+    hidden = dataclasses.replace(make_look("all-tissues", context), visible=[False, True, True, False])
+    assert any("densest real tissue (3)" in failure for failure in check_look(context, hidden)) is must_show
+    assert not any("densest real tissue (2)" in failure for failure in check_look(context, hidden))
+
+
 # Every look of the panel keeps its promise (the oracle) -------------------------------------------------------------
 
 
