@@ -116,6 +116,12 @@ def test_a_dense_tail_holds_at_most_the_tail_share_of_the_largest_tissue(above, 
     assert (dense_tail([20.0, 70.0, 140.0, 160.0], voxels, 2.6) != []) is tail
 
 
+@pytest.mark.parametrize("gap, tail", [(RULES.dense_separation + 0.05, True), (RULES.dense_separation - 0.05, False)])
+def test_a_tissue_of_the_dense_tail_lies_the_dense_separation_above_the_largest(gap, tail):
+    # Bone `gap` noise widths of 2.6 bins above the soft tissue (bin 70).
+    assert (dense_tail([20.0, 70.0, 70.0 + gap * 2.6], [230.0, 700.0, 65.0], 2.6) == [2]) is tail
+
+
 @pytest.mark.parametrize("share, tail", [(RULES.real_share * 1.02, True), (RULES.real_share * 0.98, False)])
 def test_a_tissue_of_the_dense_tail_is_real(share, tail):
     # The dense tissue holds `share` of all the voxels of the tissues.
