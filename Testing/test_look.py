@@ -209,6 +209,27 @@ def test_a_fog_class_next_to_the_background_stays_clear():
     assert look.visible == [False, False, True, True] and look.tissue_shares[1] == 0.0
 
 
+@pytest.mark.parametrize("gap, shown", [(RULES.fog_separation - 0.05, False), (RULES.fog_separation + 0.05, True)])
+def test_a_tissue_within_the_fog_separation_of_the_background_starts_hidden(gap, shown):
+    # The low tissue lies `gap` noise widths of 2 bins above the air, touching little of it.
+    classes = make_classes([5000, 400, 3000, 800], contact=[1.0, 0.3, 0.0, 0.0])
+    means = np.array([0.0, 2.0 * gap, 20.0, 40.0])
+    bins = np.random.default_rng(0).integers(0, 40, (12, 12, 12))
+    look = default_look(classes, np.arange(4), means, "mr", labels=np.repeat(np.arange(4), 10), class_bins=means,
+                        noise_sd=2.0, preview=Preview(bins, (1.0, 1.0, 1.0), 40))  # fmt: skip
+    assert look.visible == [False, shown, True, True]
+
+
+@pytest.mark.parametrize("factor, shown", [(1.05, True), (0.95, False)])
+def test_the_densest_tissue_is_shown_beyond_max_classes_when_it_is_real(factor, shown):
+    # max_classes 1 shows the soft tissue alone; the dense tissue holds `factor` times the real share.
+    share = factor * RULES.real_share
+    classes = make_classes([5000, 3000, round(3000 * share / (1 - share), 6)])
+    means = np.array([0.0, 20.0, 40.0])
+    look = default_look(classes, np.arange(3), means, "mr", class_bins=means, noise_sd=2.0, max_classes=1)
+    assert look.visible == [False, True, shown]
+
+
 def test_on_uncalibrated_data_the_outer_tissue_is_a_surface_and_the_top_of_the_ramp_is_reached():
     # The shell in a field of view three times wider: a voxel is 1.7 unit distances (not 5), so at the start the
     # shell lets light through and must be made a surface.
