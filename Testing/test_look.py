@@ -218,6 +218,8 @@ def test_a_tissue_within_the_fog_separation_of_the_background_starts_hidden(gap,
     look = default_look(classes, np.arange(4), means, "mr", labels=np.repeat(np.arange(4), 10), class_bins=means,
                         noise_sd=2.0, preview=Preview(bins, (1.0, 1.0, 1.0), 40))  # fmt: skip
     assert look.visible == [False, shown, True, True]
+    if not shown:  # hidden, it keeps the ramp's low end: what a user who shows it starts from
+        assert look.opacities[1] == RULES.opacity_low
 
 
 @pytest.mark.parametrize("factor, shown", [(1.05, True), (0.95, False)])
