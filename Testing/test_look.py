@@ -232,6 +232,19 @@ def test_the_densest_tissue_is_shown_beyond_max_classes_when_it_is_real(factor, 
     assert look.visible == [False, True, shown]
 
 
+@pytest.mark.parametrize("factor, real", [(1.05, True), (0.95, False)])
+def test_a_stray_tissue_below_the_real_share_takes_the_opacity_of_the_real_one_below(factor, real):
+    # A tissue holding `factor` times the real share lies between the soft tissue and the dense one.
+    share = factor * RULES.real_share
+    classes = make_classes([5000, 3000, 5000 * share / (1 - share), 2000])
+    means = np.array([0.0, 10.0, 25.0, 35.0])
+    bins = np.random.default_rng(0).integers(0, 40, (12, 12, 12))
+    look = default_look(classes, np.arange(4), means, "mr", labels=np.repeat(np.arange(4), 10), class_bins=means,
+                        noise_sd=1.0, preview=Preview(bins, (1.0, 1.0, 1.0), 40))  # fmt: skip
+    middle = (RULES.opacity_low + RULES.opacity_high) / 2  # its place on the ramp of three tissues
+    assert look.opacities[2] == (pytest.approx(middle) if real else look.opacities[1])
+
+
 def test_on_uncalibrated_data_the_outer_tissue_is_a_surface_and_the_top_of_the_ramp_is_reached():
     # The shell in a field of view three times wider: a voxel is 1.7 unit distances (not 5), so at the start the
     # shell lets light through and must be made a surface.
