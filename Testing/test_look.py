@@ -498,6 +498,16 @@ def test_a_fringe_tissues_core_is_a_tissue_of_its_own(top_contact, split):
     assert apart.tolist() == ([0, 1, 1, 2, 3] if split else [0, 1, 1, 1, 2])
 
 
+@pytest.mark.parametrize("margin, split", [(0.01, True), (-0.01, False)])
+def test_a_tissue_is_a_fringe_when_more_than_the_rim_contact_of_its_voxels_touch_the_background(margin, split):
+    # Tissue 1: a class touching the background everywhere (contact 1) and a core touching it nowhere, in the
+    # proportion that puts the tissue's contact `margin` above or below the rim contact.
+    contact_share = RULES.rim_contact + margin
+    voxels = np.array([10_000.0, 1000 * contact_share, 1000 * (1 - contact_share), 500])
+    apart = fringe_cores_apart(np.array([0, 1, 1, 2]), np.array([1.0, 1.0, 0.0, 0.0]), voxels, np.arange(4) == 0)
+    assert apart.tolist() == ([0, 1, 2, 3] if split else [0, 1, 1, 2])
+
+
 def test_a_tissue_that_is_no_fringe_is_never_split():
     contact = np.array([1.0, 0.6, 0.1, 0.0])  # tissue 1 as a whole: 0.6 * 100 + 0.1 * 900 over 1000 = 0.15
     tissue_of = np.array([0, 1, 1, 2])
