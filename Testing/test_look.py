@@ -10,6 +10,7 @@ from IsoSimilarityTFLib.classes import IsovalueClass
 from IsoSimilarityTFLib.look import (
     RAMP,
     SHOWN_PLACE,
+    bin_opacity_of,
     default_look,
     dense_tail,
     detect_kind,
@@ -178,6 +179,16 @@ def test_an_enclosed_dense_tissue_is_seen_through_the_tissue_around_it():
     assert look.opacities[13] == look.opacities[10] < look.opacities[16] < look.opacities[19] < look.opacities[20]
 
 
+@pytest.mark.parametrize("separation, cleared", [(19.9, True), (20.1, False)])
+def test_a_tissue_is_cleared_in_front_of_a_feature_it_lies_the_dense_separation_below(separation, cleared):
+    # The soft shell (bin 10) lies 20 noise widths below the core (bin 30): apart from it when the rule says so.
+    look = shell_look(
+        Preview(shell_volume(), (1.0, 1.0, 1.0), 40), rules=dataclasses.replace(RULES, dense_separation=separation)
+    )
+    assert look.opacities[30] >= RULES.opacity_high
+    assert (look.opacities[10] < RULES.opacity_low) is cleared
+
+
 @pytest.mark.parametrize("ramp_start", [4.5, 6.5])
 def test_the_partial_volume_ramp_starts_ramp_start_noise_widths_above_the_tissue_below(ramp_start):
     rules = dataclasses.replace(RULES, ramp_start=ramp_start)
@@ -243,6 +254,20 @@ def test_a_stray_tissue_below_the_real_share_takes_the_opacity_of_the_real_one_b
                         noise_sd=1.0, preview=Preview(bins, (1.0, 1.0, 1.0), 40))  # fmt: skip
     middle = (RULES.opacity_low + RULES.opacity_high) / 2  # its place on the ramp of three tissues
     assert look.opacities[2] == (pytest.approx(middle) if real else look.opacities[1])
+
+
+@pytest.mark.parametrize("seen", [0.6, RULES.seen, 0.9])
+def test_the_outer_surface_is_raised_until_it_gives_the_seen_share_of_its_rays(seen):
+    # The shell in a field of view three times wider, rendered alone: the light it sends over the rays that cross it
+    # (six axis views) reaches `seen`, to within the estimate of its thickness (it lands a little under, never over).
+    bins = np.zeros((120, 120, 120), dtype=np.intp)
+    bins[40:80, 40:80, 40:80] = shell_volume()
+    preview = Preview(bins, (1.0, 1.0, 1.0), 40)
+    opacity = np.array(shell_look(preview, kind="mr", rules=dataclasses.replace(RULES, seen=seen)).opacities)
+    soft = (np.arange(40) >= 5) & (np.arange(40) < 20)
+    light = visibility_histogram(preview, bin_opacity_of(np.where(soft, opacity, 0.0), np.arange(40), 1.0))
+    rays = sum(2 * soft[bins].any(axis=axis).sum() for axis in range(3))
+    assert seen - 0.04 <= light[soft].sum() / rays <= seen + 0.01
 
 
 def test_on_uncalibrated_data_the_outer_tissue_is_a_surface_and_the_top_of_the_ramp_is_reached():
