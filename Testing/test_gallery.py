@@ -404,6 +404,30 @@ def test_the_first_click_follows_the_contexts_rules(opacity_high):
     assert look.visible[2] and look.opacities[2] == pytest.approx(opacity_high)
 
 
+@pytest.mark.parametrize("thin_opacity", [0.3, 0.7])
+def test_the_rim_runs_from_the_thin_opacity_up_to_the_densest_shown_opacity(thin_opacity):
+    """Twigs (bin 10) and thicker twigs (bin 20), both rim: the thinner start at the thin opacity, the thicker reach
+    the densest opacity shown (the core's), or the thin opacity where that is higher."""
+    n = 40
+    z, y, x = np.indices((n, n, n)) - (n - 1) / 2
+    bins = np.where(np.sqrt(x**2 + y**2 + z**2) < 9, 35, 0).astype(np.intp)
+    for k, value in ((4, 10), (12, 10), (28, 20), (36, 20)):
+        bins[k, 3, 2:38] = value
+    labels = np.select([np.arange(40) < 5, np.arange(40) < 15, np.arange(40) < 25], [0, 1, 2], 3)
+    class_bins = np.array([0.0, 10.0, 20.0, 35.0])
+    context = LookContext.build(
+        classes=make_classes(np.bincount(labels[bins.ravel()], minlength=4).tolist(), contact=[1.0, 1.0, 1.0, 0.1]),
+        tissue_of_class=np.arange(4), class_values=class_bins, class_bins=class_bins, labels=labels, noise_sd=1.0,
+        preview=Preview(bins, (5.0, 5.0, 5.0), 40), kind="mr",
+        rules=dataclasses.replace(RULES, thin_opacity=thin_opacity),
+    )  # fmt: skip
+    assert context.roles == ["background", "rim", "rim", "bulk"]
+    core = make_look("outer-surface", context).opacities[3]
+    look = make_look("thin-structures", context)
+    assert look.opacities[1] == pytest.approx(thin_opacity)
+    assert look.opacities[2] == pytest.approx(max(core, thin_opacity))
+
+
 def test_the_thin_structures_take_the_colour_of_the_structure_not_the_ramps_low_end():
     """The twigs context with a dense centre in its core: the ramp runs from the core (tan) to the centre (white)."""
     context = twigs_context()
