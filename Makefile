@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 
 export VTK_DEFAULT_OPENGL_WINDOW ?= vtkEGLRenderWindow
 
-.PHONY: all test demo bench evaluate compare lint clean
+.PHONY: all test demo bench evaluate compare mutants lint clean
 
 all: test
 
@@ -36,6 +36,10 @@ evaluate: $(STAMP)
 # PRESETS=/path/presets.xml, else $$ISOSIMTF_PRESETS, ../shared/presets.xml, or a git mirror of Slicer.
 compare: $(STAMP)
 	$(BIN)/python benchmarks/compare.py $(if $(PRESETS),--presets "$(PRESETS)")
+
+# Whether every use of a look threshold is tested at its boundary (about 20 min on 2 cores).
+mutants: $(STAMP)
+	$(BIN)/python benchmarks/rule_mutants.py
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

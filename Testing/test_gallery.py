@@ -176,6 +176,7 @@ def test_the_see_through_look_keeps_the_bulk_at_its_share(phantom_design):
     share = look.role_shares(phantom_design.look_context().roles)["bulk"]
     low, high = RULES.see_through
     assert low <= share <= high
+    assert share == pytest.approx((low + high) / 2, abs=0.01)  # its search aims at the middle, and stops within 0.01
     assert phantom_design.check_look("see-through") == []
 
 
@@ -322,6 +323,59 @@ def _with_share(context, look, target, scaled, share):
     measured, trial = target_share(0.5 * (low + high))
     assert measured == pytest.approx(share, abs=0.005)
     return dataclasses.replace(look, opacities=[float(a) for a in trial])
+
+
+@pytest.mark.parametrize("margin, kept", [(-0.03, False), (0.03, True)])
+def test_the_dense_parts_promise_keeps_the_seen_share_of_the_dense_light(margin, kept):
+    """The dense core behind a shell made opaque enough that it keeps ``seen + margin`` of its own light."""
+    context = shell_context()
+    look = make_look("dense-parts", context)
+    dense = context.of_role("dense")
+    visible = np.array([False, True, True])
+    opacities = np.asarray(look.opacities, dtype=float)
+
+    def kept_with(shell):
+        trial = np.where(context.of_role("bulk"), shell, opacities)
+        return light_of(context, trial, visible)[dense].sum() / light_of(context, trial, dense)[dense].sum(), trial
+
+    low, high = 1e-6, 1.0  # the light kept falls as the shell grows opaque: bisection in log opacity
+    for _ in range(60):
+        middle = np.sqrt(low * high)
+        low, high = (middle, high) if kept_with(middle)[0] > RULES.seen + margin else (low, middle)
+    measured, trial = kept_with(np.sqrt(low * high))
+    assert measured == pytest.approx(RULES.seen + margin, abs=0.005)
+    moved = dataclasses.replace(look, visible=list(visible), opacities=[float(a) for a in trial])
+    assert (not any("dense keeps" in failure for failure in check_look(context, moved))) is kept
+
+
+@pytest.mark.parametrize(
+    "share, kept",
+    [
+        (RULES.see_through[0] - 0.02, False),
+        (RULES.see_through[0] + 0.02, True),
+        (RULES.see_through[1] - 0.02, True),
+        (RULES.see_through[1] + 0.02, False),
+    ],
+)
+def test_the_see_through_promise_is_its_band_of_the_bulks_share(share, kept):
+    """The shell of the see-through look made as opaque as gives it ``share`` of the picture."""
+    context = shell_context()
+    look = make_look("see-through", context)
+    bulk = context.of_role("bulk")
+    opacities = np.asarray(look.opacities, dtype=float)
+
+    def bulk_share(shell):
+        trial = np.where(bulk, shell, opacities)
+        return float(class_shares(context, trial, look.visible)[bulk].sum()), trial
+
+    low, high = 1e-6, 1.0  # the shell's share rises with its opacity: bisection in log opacity
+    for _ in range(60):
+        middle = np.sqrt(low * high)
+        low, high = (low, middle) if bulk_share(middle)[0] > share else (middle, high)
+    measured, trial = bulk_share(np.sqrt(low * high))
+    assert measured == pytest.approx(share, abs=0.005)
+    moved = dataclasses.replace(look, opacities=[float(a) for a in trial])
+    assert (not any("bulk gives" in failure for failure in check_look(context, moved))) is kept
 
 
 @pytest.mark.parametrize("margin, kept", [(-0.02, False), (0.02, True)])
