@@ -45,8 +45,9 @@ RULE_HOLDERS = ("RULES", "rules", "r")
 
 @dataclass(frozen=True)
 class Use:
-    """One use of a rule: ``path`` (relative to the repository), 1-based ``line``, 0-based columns, the source text,
-    and whether the field is a pair (``see_through``: both ends are scaled)."""
+    """One use of a rule: ``path`` (relative to the repository), 1-based ``line``, 0-based byte columns in the line's
+    UTF-8 (as :mod:`ast` counts), the source text, and whether the field is a pair (``see_through``: both ends are
+    scaled)."""
 
     path: Path
     line: int
@@ -56,27 +57,26 @@ class Use:
     pair: bool
 
 
+def _name_of(node: ast.expr) -> str | None:
+    """``x`` for a name ``x`` or an attribute ``a.x``, else None."""
+    if isinstance(node, ast.Name):
+        return node.id
+    return node.attr if isinstance(node, ast.Attribute) else None
+
+
 def rule_uses(root: Path, pairs: dict[str, bool]) -> list[Use]:
     """Every attribute ``<holder>.<field>`` in the library's code (``holder`` one of :data:`RULE_HOLDERS`, or an
     attribute named so: ``context.rules``; ``pairs`` maps each field to whether it is a pair), in file and line
     order."""
     uses = []
     for path in sorted((root / LIBRARY).glob("*.py")):
-        source = path.read_text()
+        source = path.read_text(encoding="utf-8")
         lines = source.splitlines()
         for node in ast.walk(ast.parse(source)):
             if not (isinstance(node, ast.Attribute) and node.attr in pairs):
                 continue
-            holder = node.value
-            name = (
-                holder.id
-                if isinstance(holder, ast.Name)
-                else holder.attr
-                if isinstance(holder, ast.Attribute)
-                else None
-            )
-            if name in RULE_HOLDERS and node.lineno == node.end_lineno:
-                text = lines[node.lineno - 1][node.col_offset : node.end_col_offset]
+            if _name_of(node.value) in RULE_HOLDERS and node.lineno == node.end_lineno:
+                text = lines[node.lineno - 1].encode()[node.col_offset : node.end_col_offset].decode()
                 where = (path.relative_to(root), node.lineno, node.col_offset, node.end_col_offset)
                 uses.append(Use(*where, text, pairs[node.attr]))
     return sorted(uses, key=lambda u: (str(u.path), u.line, u.start))
@@ -85,12 +85,12 @@ def rule_uses(root: Path, pairs: dict[str, bool]) -> list[Use]:
 def run_mutant(copy: Path, use: Use, factor: float) -> tuple[bool, str]:
     """Whether a test fails with ``use`` scaled by ``factor`` in ``copy``; the file is restored afterwards."""
     path = copy / use.path
-    original = path.read_text()
+    original = path.read_bytes()
     lines = original.splitlines(keepends=True)
     row = lines[use.line - 1]
     scaled = f"tuple(v * {factor} for v in {use.text})" if use.pair else f"({use.text} * {factor})"
-    lines[use.line - 1] = f"{row[: use.start]}{scaled}{row[use.end :]}"
-    path.write_text("".join(lines))
+    lines[use.line - 1] = row[: use.start] + scaled.encode() + row[use.end :]
+    path.write_bytes(b"".join(lines))
     try:
         env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(copy / "IsoSimilarityTF"), str(copy)]))
         result = subprocess.run(
@@ -98,7 +98,7 @@ def run_mutant(copy: Path, use: Use, factor: float) -> tuple[bool, str]:
             cwd=copy, env=env, capture_output=True, text=True,
         )  # fmt: skip
     finally:
-        path.write_text(original)
+        path.write_bytes(original)
     summary = result.stdout.strip().splitlines()[-1] if result.stdout.strip() else result.stderr.strip()[-200:]
     return result.returncode != 0, summary
 
