@@ -197,15 +197,16 @@ def test_the_partial_volume_ramp_starts_ramp_start_noise_widths_above_the_tissue
     assert look.opacities[first - 1] == look.opacities[10] < look.opacities[first]
 
 
-def test_an_enclosed_feature_keeps_the_seen_share_of_its_light_whatever_it_is():
+@pytest.mark.parametrize("seen", [0.28, 0.6, 0.95])
+def test_an_enclosed_feature_keeps_the_seen_share_of_its_light_whatever_it_is(seen):
+    # Uncleared (with a dense separation over 20 noise widths), the core keeps 0.26 of its light: at 0.28, within a
+    # tenth of the aim, the soft shell is cleared all the same. It is cleared only as far as the rule asks: the estimate T ** s is exact on a
+    # shell of one thickness and lands just over the aim.
     preview = Preview(shell_volume(), (1.0, 1.0, 1.0), 40)
-    kept = {}
-    for seen in (0.6, 0.95):
-        opacity = np.array(shell_look(preview, rules=dataclasses.replace(RULES, seen=seen)).opacities)
-        alone = visibility_histogram(preview, np.where(np.arange(40) >= 20, opacity, 0.0))[20:].sum()
-        kept[seen] = visibility_histogram(preview, opacity)[20:].sum() / alone
-        assert kept[seen] >= 0.95 * seen
-    assert kept[0.6] < 0.9 < kept[0.95]  # the soft shell is cleared only as far as the rule asks
+    opacity = np.array(shell_look(preview, rules=dataclasses.replace(RULES, seen=seen)).opacities)
+    alone = visibility_histogram(preview, np.where(np.arange(40) >= 20, opacity, 0.0))[20:].sum()
+    kept = visibility_histogram(preview, opacity)[20:].sum() / alone
+    assert seen - 0.005 <= kept <= seen + 0.01
 
 
 def test_a_fog_class_next_to_the_background_stays_clear():
@@ -256,10 +257,11 @@ def test_a_stray_tissue_below_the_real_share_takes_the_opacity_of_the_real_one_b
     assert look.opacities[2] == (pytest.approx(middle) if real else look.opacities[1])
 
 
-@pytest.mark.parametrize("seen", [0.6, RULES.seen, 0.9])
+@pytest.mark.parametrize("seen", [0.56, 0.6, RULES.seen, 0.9])
 def test_the_outer_surface_is_raised_until_it_gives_the_seen_share_of_its_rays(seen):
     # The shell in a field of view three times wider, rendered alone: the light it sends over the rays that cross it
     # (six axis views) reaches `seen`, to within the estimate of its thickness (it lands a little under, never over).
+    # At the ramp's low end it gives 0.51: at 0.56, within a tenth of the aim, it is raised all the same.
     bins = np.zeros((120, 120, 120), dtype=np.intp)
     bins[40:80, 40:80, 40:80] = shell_volume()
     preview = Preview(bins, (1.0, 1.0, 1.0), 40)
