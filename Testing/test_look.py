@@ -200,8 +200,8 @@ def test_the_partial_volume_ramp_starts_ramp_start_noise_widths_above_the_tissue
 @pytest.mark.parametrize("seen", [0.28, 0.6, 0.95])
 def test_an_enclosed_feature_keeps_the_seen_share_of_its_light_whatever_it_is(seen):
     # Uncleared (with a dense separation over 20 noise widths), the core keeps 0.26 of its light: at 0.28, within a
-    # tenth of the aim, the soft shell is cleared all the same. It is cleared only as far as the rule asks: the estimate T ** s is exact on a
-    # shell of one thickness and lands just over the aim.
+    # tenth of the aim, the soft shell is cleared all the same. It is cleared only as far as the rule asks: the
+    # estimate T ** s is exact on a shell of one thickness and lands just over the aim.
     preview = Preview(shell_volume(), (1.0, 1.0, 1.0), 40)
     opacity = np.array(shell_look(preview, rules=dataclasses.replace(RULES, seen=seen)).opacities)
     alone = visibility_histogram(preview, np.where(np.arange(40) >= 20, opacity, 0.0))[20:].sum()
