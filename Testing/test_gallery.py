@@ -12,6 +12,7 @@ from IsoSimilarityTFLib.gallery import (
     LOOK_NAMES,
     GalleryLook,
     LookContext,
+    _bracketed_search,
     broken_shares,
     check_look,
     class_shares,
@@ -428,11 +429,34 @@ def test_the_thin_structures_promise_is_the_thin_share(margin, kept):
     assert (broken == []) is kept
 
 
-@pytest.mark.parametrize("thin_share", [RULES.thin_share, 0.7])
+@pytest.mark.parametrize("thin_share", [0.2, 0.3, RULES.thin_share, 0.7, 0.9])
 def test_the_thin_structures_look_clears_the_rest_only_as_far_as_the_thin_share(thin_share):
+    """The pot is opaque: scaling its opacity changes its light little until it is nearly gone, where a linear step
+    creeps (0.2 and 0.3 were missed by 0.015 and 0.002 after six rounds of it)."""
     context = twigs_context(dataclasses.replace(RULES, thin_share=thin_share))
     look = make_look("thin-structures", context)
     assert thin_share <= float(look.class_shares[context.of_role("rim")].sum()) <= thin_share + 0.05
+
+
+def test_the_bracketed_search_reaches_a_root_where_a_function_is_flat_at_one_end():
+    # A picture's share against the log of the factor its opaque surfaces are scaled by: flat, then a steep rise.
+    def share(x):
+        return 1.0 / (1.0 + np.exp(2.0 * (x + 8.0)))
+
+    calls = []
+
+    def f(x):
+        calls.append(x)
+        return share(x) - 0.7
+
+    start = [(0.0, f(0.0)), (-13.8, f(-13.8))]
+    points = _bracketed_search(f, start, 8, lambda v: abs(v) <= 0.02)
+    assert abs(points[-1][1]) <= 0.02 and len(calls) <= 2 + 8
+    assert all(-13.8 <= x <= 0.0 for x in calls)  # inside the bracket it was given
+    # Without a bracket (both ends short of the aim) nothing is evaluated.
+    calls.clear()
+    assert _bracketed_search(f, [(0.0, -0.7), (-1.0, -0.6)], 8, lambda v: abs(v) <= 0.02) == [(0.0, -0.7), (-1.0, -0.6)]
+    assert calls == []
 
 
 @pytest.mark.parametrize("factor, offered", [(0.95, True), (1.05, False)])

@@ -47,12 +47,14 @@ from .visibility import Preview, visibility_histogram
 _SHARE_ROUNDING = 1e-9
 # The visibility step stops within this of the light it aims to keep (its last round's measure, float32 sums).
 _KEPT_TOLERANCE = 0.01
-# Rounds of clearing what lies in front of the dense parts (each sets the factor from the measured transmittance).
-_CLEARING_ROUNDS = 6
-# Aimed above the promised share of the dense parts by this much, so the last round's estimate lands inside it.
+# Renders of the clearing around a target (dense parts, the rim) after its start and first step (regula falsi).
+_CLEARING_ROUNDS = 8
+# The clearing aims this far above the aims it must reach (shares, kept light), and stops within twice this above.
 _SHARE_MARGIN = 0.02
 # Rounds of the see-through look's search for the bulk's opacity (a secant in log opacity: 6 reach 1 % of share).
 _SEE_THROUGH_ROUNDS = 6
+# The smallest factor the clearing scales the others' opacities by: the far end of its search.
+_LOWEST_FACTOR = 1e-6
 
 
 @dataclass(frozen=True)
@@ -310,29 +312,74 @@ def _cleared_around(
     share_aimed: float,
     kept_aimed: float,
 ) -> Optional[tuple[list[float], list[bool]]]:
-    """The ``target`` classes (a ``(n_classes,)`` mask) shown, every other shown class made clearer until the target
-    keeps ``kept_aimed`` of its own light (0: not asked) and gives ``share_aimed`` of the picture (Ma & Entezari's
-    visibility loop, turned round: the target is at the top already). None when the target sends no light in the
-    preview."""
+    """The ``target`` classes (a ``(n_classes,)`` mask) shown, every other shown class made clearer by one factor
+    until the target keeps ``kept_aimed`` of its own light (0: not asked) and gives ``share_aimed`` of the picture,
+    the aim that binds reached within ``2 * _SHARE_MARGIN`` (Ma & Entezari's visibility loop, turned round: the
+    target is at the top already). None when the target sends no light in the preview."""
     opacities = np.asarray(opacities, dtype=np.float64)
     visible = np.asarray(visible, dtype=bool) | target
     alone = _light(context, opacities, target)[target].sum()
     if alone <= 0:
         return None
     others = visible & ~target
-    for _ in range(_CLEARING_ROUNDS):
-        light = _light(context, opacities, visible)
-        kept, share = light[target].sum() / alone, light[target].sum() / max(light.sum(), 1e-300)
-        if (kept >= kept_aimed and share >= share_aimed) or not others.any():
+
+    def measured(log_factor: float) -> tuple[float, float]:
+        """The target's share of the picture and the share of its own light it keeps, with the others' opacities
+        scaled by ``exp(log_factor)``."""
+        light = _light(context, np.where(others, opacities * np.exp(log_factor), opacities), visible)
+        return light[target].sum() / max(light.sum(), 1e-300), light[target].sum() / alone
+
+    def above_aims(log_factor: float) -> float:
+        """How far above its aim the binding aim lies (negative: below it)."""
+        share, kept = measured(log_factor)
+        return min(share - share_aimed, kept - kept_aimed) if kept_aimed > 0 else share - share_aimed
+
+    if above_aims(0.0) >= 0 or not others.any():
+        return list(opacities), list(visible)
+    # The first step assumes what lies in front passes about T of the light, T ** s once its opacity is scaled by s,
+    # and that a thin haze's own light scales as s. Opaque surfaces fall short of it; a bracketed search goes on.
+    share, kept = measured(0.0)
+    aim = min(share_aimed + _SHARE_MARGIN, 1.0 - 1e-6)
+    factor = (share / max(1.0 - share, 1e-12)) * (1.0 - aim) / aim
+    if kept_aimed > 0:
+        factor = min(factor, np.log(kept_aimed) / np.log(min(max(kept, 1e-12), kept_aimed)))
+    first = float(np.log(np.clip(factor, _LOWEST_FACTOR, 1.0)))
+
+    def off_aim(log_factor: float) -> float:  # 0 where the binding aim is exceeded by the margin, the search's aim
+        return above_aims(log_factor) - _SHARE_MARGIN
+
+    points = [(0.0, off_aim(0.0)), (first, off_aim(first))]
+    if points[-1][1] < -_SHARE_MARGIN:  # short of the aims: bracket them with the far end, the others all but gone
+        points.append((float(np.log(_LOWEST_FACTOR)), off_aim(float(np.log(_LOWEST_FACTOR)))))
+    points = _bracketed_search(off_aim, points, _CLEARING_ROUNDS, lambda f: abs(f) <= _SHARE_MARGIN)
+    reached = [x for x, f in points if f >= -_SHARE_MARGIN]
+    # The least clearing that reaches the aims; where none does, the nearest to them.
+    best = max(reached) if reached else max(points, key=lambda p: p[1])[0]
+    return list(np.where(others, opacities * np.exp(best), opacities)), list(visible)
+
+
+def _bracketed_search(
+    f: Callable[[float], float], points: list[tuple[float, float]], rounds: int, done: Callable[[float], bool]
+) -> list[tuple[float, float]]:
+    """``points`` (``(x, f(x))``, the search's start) extended by at most ``rounds`` evaluations of the monotone
+    ``f`` in the tightest bracket of its root they hold: regula falsi, bisecting after two steps that landed on
+    one side (``f`` may be flat at one end, as a picture's shares are where opaque surfaces are scaled, and regula
+    falsi then creeps). It stops at the first ``done(f(x))``, or when the points do not bracket a root."""
+    points = list(points)
+    steps: list[float] = []  # the values this search evaluated, in order
+    for _ in range(rounds):
+        if any(done(fx) for _, fx in points):
             break
-        # What lies in front passes about T of the light, T ** s once its opacity is scaled by s; a thin haze's own
-        # light scales about as s.
-        aim = min(share_aimed + _SHARE_MARGIN, 1.0 - 1e-6)  # the linear estimate lands on either side of it
-        factor = (share / max(1.0 - share, 1e-12)) * (1.0 - aim) / aim
-        if kept_aimed > 0:
-            factor = min(factor, np.log(kept_aimed) / np.log(min(max(kept, 1e-12), kept_aimed)))
-        opacities = np.where(others, opacities * min(factor, 1.0), opacities)
-    return list(opacities), list(visible)
+        below = [p for p in points if p[1] < 0]
+        above = [p for p in points if p[1] > 0]
+        if not below or not above:
+            break
+        (x0, f0), (x1, f1) = max(below, key=lambda p: p[1]), min(above, key=lambda p: p[1])
+        creeping = len(steps) >= 2 and (steps[-1] > 0) == (steps[-2] > 0)
+        x = 0.5 * (x0 + x1) if creeping else x0 - f0 * (x1 - x0) / (f1 - f0)
+        steps.append(f(x))
+        points.append((x, steps[-1]))
+    return points
 
 
 def _made(context: LookContext, name: str) -> Made:
