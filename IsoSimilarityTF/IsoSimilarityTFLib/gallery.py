@@ -47,7 +47,7 @@ from .visibility import Preview, visibility_histogram
 _SHARE_ROUNDING = 1e-9
 # The visibility step stops within this of the light it aims to keep (its last round's measure, float32 sums).
 _KEPT_TOLERANCE = 0.01
-# Renders of the clearing around a target (dense parts, the rim) after its start and first step (regula falsi).
+# Renders of the clearing's bracketed search (regula falsi) after its start, first step and far end.
 _CLEARING_ROUNDS = 8
 # The clearing aims this far above the aims it must reach (shares, kept light), and stops within twice this above.
 _SHARE_MARGIN = 0.02
@@ -329,29 +329,28 @@ def _cleared_around(
         light = _light(context, np.where(others, opacities * np.exp(log_factor), opacities), visible)
         return light[target].sum() / max(light.sum(), 1e-300), light[target].sum() / alone
 
-    def above_aims(log_factor: float) -> float:
-        """How far above its aim the binding aim lies (negative: below it)."""
-        share, kept = measured(log_factor)
-        return min(share - share_aimed, kept - kept_aimed) if kept_aimed > 0 else share - share_aimed
+    def off_aim(share: float, kept: float) -> float:
+        """How far the binding aim lies above its aim plus the margin, the search's aim (negative: short of it)."""
+        above = min(share - share_aimed, kept - kept_aimed) if kept_aimed > 0 else share - share_aimed
+        return above - _SHARE_MARGIN
 
-    if above_aims(0.0) >= 0 or not others.any():
+    share, kept = measured(0.0)
+    start = off_aim(share, kept)
+    if start >= -_SHARE_MARGIN or not others.any():
         return list(opacities), list(visible)
     # The first step assumes what lies in front passes about T of the light, T ** s once its opacity is scaled by s,
     # and that a thin haze's own light scales as s. Opaque surfaces fall short of it; a bracketed search goes on.
-    share, kept = measured(0.0)
     aim = min(share_aimed + _SHARE_MARGIN, 1.0 - 1e-6)
     factor = (share / max(1.0 - share, 1e-12)) * (1.0 - aim) / aim
     if kept_aimed > 0:
         factor = min(factor, np.log(kept_aimed) / np.log(min(max(kept, 1e-12), kept_aimed)))
-    first = float(np.log(np.clip(factor, _LOWEST_FACTOR, 1.0)))
-
-    def off_aim(log_factor: float) -> float:  # 0 where the binding aim is exceeded by the margin, the search's aim
-        return above_aims(log_factor) - _SHARE_MARGIN
-
-    points = [(0.0, off_aim(0.0)), (first, off_aim(first))]
+    first, far = float(np.log(np.clip(factor, _LOWEST_FACTOR, 1.0))), float(np.log(_LOWEST_FACTOR))
+    points = [(0.0, start), (first, off_aim(*measured(first)))]
     if points[-1][1] < -_SHARE_MARGIN:  # short of the aims: bracket them with the far end, the others all but gone
-        points.append((float(np.log(_LOWEST_FACTOR)), off_aim(float(np.log(_LOWEST_FACTOR)))))
-    points = _bracketed_search(off_aim, points, _CLEARING_ROUNDS, lambda f: abs(f) <= _SHARE_MARGIN)
+        points.append((far, off_aim(*measured(far))))
+    points = _bracketed_search(
+        lambda x: off_aim(*measured(x)), points, _CLEARING_ROUNDS, lambda f: abs(f) <= _SHARE_MARGIN
+    )
     reached = [x for x, f in points if f >= -_SHARE_MARGIN]
     # The least clearing that reaches the aims; where none does, the nearest to them.
     best = max(reached) if reached else max(points, key=lambda p: p[1])[0]
@@ -366,7 +365,7 @@ def _bracketed_search(
     one side (``f`` may be flat at one end, as a picture's shares are where opaque surfaces are scaled, and regula
     falsi then creeps). It stops at the first ``done(f(x))``, or when the points do not bracket a root."""
     points = list(points)
-    steps: list[float] = []  # the values this search evaluated, in order
+    given = len(points)
     for _ in range(rounds):
         if any(done(fx) for _, fx in points):
             break
@@ -375,10 +374,9 @@ def _bracketed_search(
         if not below or not above:
             break
         (x0, f0), (x1, f1) = max(below, key=lambda p: p[1]), min(above, key=lambda p: p[1])
-        creeping = len(steps) >= 2 and (steps[-1] > 0) == (steps[-2] > 0)
+        creeping = len(points) - given >= 2 and (points[-1][1] > 0) == (points[-2][1] > 0)
         x = 0.5 * (x0 + x1) if creeping else x0 - f0 * (x1 - x0) / (f1 - f0)
-        steps.append(f(x))
-        points.append((x, steps[-1]))
+        points.append((x, f(x)))
     return points
 
 
