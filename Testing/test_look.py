@@ -138,6 +138,18 @@ def test_a_tissue_most_of_whose_voxels_touch_the_background_starts_hidden(contac
     assert look.visible == [False, shown, True]
 
 
+@pytest.mark.parametrize("gap, shown", [(RULES.fog_separation + 0.1, True), (RULES.fog_separation - 0.1, False)])
+def test_a_tissue_is_fog_where_its_largest_class_lies_not_where_its_mean_does(gap, shown):
+    # Tissue 1 is a partial-volume tail (1 and 2 noise widths above the background) and its peak, `gap` noise widths
+    # above it: its mean lies within fog_separation of the background either way (a head MRI's skin, CSF and grey
+    # matter in one tissue, whose mean the tail pulls down); its peak decides.
+    classes = make_classes([10_000, 900, 900, 1000, 500])
+    means = np.array([0.0, 1.0, 2.0, gap, 10.0])
+    assert (900 * 1.0 + 900 * 2.0 + 1000 * gap) / 2800 < RULES.fog_separation
+    look = default_look(classes, np.array([0, 1, 1, 1, 2]), means, "mr", class_bins=means, noise_sd=1.0)
+    assert look.visible == [False, shown, shown, shown, True]
+
+
 # The visibility step -------------------------------------------------------------------------------------------------
 
 
@@ -265,7 +277,8 @@ def test_the_outer_surface_is_raised_until_it_gives_the_seen_share_of_its_rays(s
     bins = np.zeros((120, 120, 120), dtype=np.intp)
     bins[40:80, 40:80, 40:80] = shell_volume()
     preview = Preview(bins, (1.0, 1.0, 1.0), 40)
-    opacity = np.array(shell_look(preview, kind="mr", rules=dataclasses.replace(RULES, seen=seen)).opacities)
+    rules = dataclasses.replace(RULES, seen=seen, fill_share=1.0)  # the shell fills the object: seen alone
+    opacity = np.array(shell_look(preview, kind="mr", rules=rules).opacities)
     soft = (np.arange(40) >= 5) & (np.arange(40) < 20)
     light = visibility_histogram(preview, bin_opacity_of(np.where(soft, opacity, 0.0), np.arange(40), 1.0))
     rays = sum(2 * soft[bins].any(axis=axis).sum() for axis in range(3))
@@ -283,8 +296,22 @@ def test_on_uncalibrated_data_the_outer_tissue_is_a_surface_and_the_top_of_the_r
     assert look.opacities[10] > RULES.opacity_low  # the enclosing tissue made a surface where it lies
     assert look.tissue_shares[1] > 0.9
     # In the tight field of view the same shell already is a surface at the start: nothing to raise.
-    tight = shell_look(Preview(shell_volume(), (1.0, 1.0, 1.0), 40), kind="mr")
+    tight = shell_look(
+        Preview(shell_volume(), (1.0, 1.0, 1.0), 40), kind="mr", rules=dataclasses.replace(RULES, fill_share=1.0)
+    )
     assert tight.opacities[10] == RULES.opacity_low and tight.tissue_shares[1] > 0.9
+
+
+@pytest.mark.parametrize("offset, fills", [(-0.01, True), (0.01, False)])
+def test_an_outer_tissue_that_fills_the_object_takes_the_ramps_top(offset, fills):
+    # The shell holds `share` of the foreground's voxels: with fill_share just under it, it fills the object and is
+    # a surface at the ramp's top (seen through its whole depth it is a veil over the core); just over, it is only
+    # made seen.
+    counts = np.bincount(shell_volume().ravel(), minlength=40)
+    share = counts[10] / (counts[10] + counts[30])
+    preview = Preview(shell_volume(), (1.0, 1.0, 1.0), 40)
+    look = shell_look(preview, kind="mr", rules=dataclasses.replace(RULES, fill_share=share + offset))
+    assert look.opacities[10] == (RULES.opacity_high if fills else RULES.opacity_low)
 
 
 def test_tissue_colours_follow_intensity_and_are_shared_by_their_classes():

@@ -247,13 +247,15 @@ def default_look(
     total = float(sum(tissue_voxels[t] for t in foreground)) or 1.0
     share = tissue_voxels / total
 
-    # 1. Visible tissues: not fog (on the background's fringe, or no further from the background's intensity than
-    # noise explains), whole tissues, largest first, up to `max_classes` classes, and the densest real one always.
+    # 1. Visible tissues: not fog (on the background's fringe, or where its largest class lies no further above the
+    # background's intensity than noise explains: the tissue's mean follows its partial-volume tail down to the
+    # background), whole tissues, largest first, up to `max_classes` classes, and the densest real one always.
     background_bin = float(class_bins[is_background][0]) if is_background.any() else -np.inf
     inner = [
         t
         for t in foreground
-        if tissue_contact[t] <= rules.rim_contact and tissue_bin[t] - background_bin >= rules.fog_separation * noise_sd
+        if tissue_contact[t] <= rules.rim_contact
+        and class_bins[_largest_class(tissue_of_class, voxels, t)] - background_bin >= rules.fog_separation * noise_sd
     ] or foreground
     classes_in = np.bincount(tissue_of_class, minlength=n_tissues)
     shown: set[int] = set()
@@ -286,7 +288,7 @@ def default_look(
             features = [int(ordered[i]) for i in dense] or real_shown[-1:]
             tissue_opacity = step.show_features(tissue_opacity, features)
         else:
-            tissue_opacity = step.outer_surface(tissue_opacity, real_shown)
+            tissue_opacity = step.outer_surface(tissue_opacity, real_shown, share)
         tissue_opacity = _follow_real(tissue_opacity, shown_sorted, real_shown)
         # The picture of the transfer function written: a feature's partial-volume ramp reaches into its classes.
         class_opacity = step.class_opacity(tissue_opacity)
@@ -331,6 +333,12 @@ def default_look(
         for c in classes
     ]
     return Look(colors_out, [float(a) for a in opacity], visible, shares)
+
+
+def _largest_class(tissue_of_class: np.ndarray, voxels: np.ndarray, tissue: int) -> int:
+    """Id of the class of ``tissue`` with the most voxels (the first of equals)."""
+    members = np.flatnonzero(tissue_of_class == tissue)
+    return int(members[np.argmax(voxels[members])])
 
 
 def fringe_cores_apart(
@@ -516,16 +524,18 @@ class _VisibilityStep:
             light = self.light(opacity)
         return opacity
 
-    def outer_surface(self, opacity: np.ndarray, real: list[int]) -> np.ndarray:
+    def outer_surface(self, opacity: np.ndarray, real: list[int], share: np.ndarray) -> np.ndarray:
         """Other data: the real tissue that encloses the others (met first by most rays through it and another) is
-        made a surface where it lies, as MR-Default shows a head's skin and a brain's cortex."""
+        made a surface where it lies, as MR-Default shows a head's skin and a brain's cortex: seen
+        (:meth:`make_seen`), and at the ramp's top where it fills the object (``share`` ``(n_tissues,)`` of the
+        foreground's voxels above :attr:`.LookRules.fill_share`)."""
         if not real:
             return opacity
-        if len(real) == 1:
-            return self.make_seen(opacity, real[0])
-
-        met_first = first_met(self.preview, self.tissue_of_bin, real)
-        return self.make_seen(opacity, real[int(np.argmax(met_first))])
+        outer = real[int(np.argmax(first_met(self.preview, self.tissue_of_bin, real)))] if len(real) > 1 else real[0]
+        opacity = self.make_seen(opacity, outer)
+        if share[outer] > self.rules.fill_share:
+            opacity[outer] = max(opacity[outer], self.rules.opacity_high)
+        return opacity
 
 
 def gradient_ramp_top(tissue_values: Sequence[float], boundary_mm: float = 2.0) -> float:

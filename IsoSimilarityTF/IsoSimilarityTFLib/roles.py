@@ -62,6 +62,10 @@ class LookRules:
             or, at the background's intensity, noise scattered in it (fog).
         seen: the share of its own light (rendered alone) that a structure a look shows through others must keep:
             what the eye reads as "seen through a veil" rather than "behind it".
+        fill_share: an outer tissue (the outer-surface look's) holding more than this share of the foreground's voxels
+            fills the object (a head MRI's skin, muscle and grey matter in one tissue): seen through its whole depth
+            it is a veil over everything inside, so it takes the ramp's top, as a surface; a thinner layer (the
+            partial-volume edge of a brain's cortex) is seen within its own depth.
         dense_share: the *dense parts* look promises that the dense classes give at least this share of the picture:
             they are what it shows; what is left of the bulk around them is a context taking at most half the
             least share the *see-through* look keeps it at (``1 - see_through[0] / 2``), so that the two looks are
@@ -93,6 +97,7 @@ class LookRules:
     white_share: float = 1 / 3
     rim_contact: float = 0.5
     seen: float = 0.8
+    fill_share: float = 0.5
     dense_share: float = 0.9
     see_through: tuple[float, float] = (0.2, 0.4)
     thin_rim_share: float = 0.5
