@@ -306,12 +306,20 @@ def test_on_uncalibrated_data_the_outer_tissue_is_a_surface_and_the_top_of_the_r
 def test_an_outer_tissue_that_fills_the_object_takes_the_ramps_top(offset, fills):
     # The shell holds `share` of the foreground's voxels: with fill_share just under it, it fills the object and is
     # a surface at the ramp's top (seen through its whole depth it is a veil over the core); just over, it is only
-    # made seen.
+    # made seen (already, in this tight field of view: it stays at the ramp's low end).
     counts = np.bincount(shell_volume().ravel(), minlength=40)
     share = counts[10] / (counts[10] + counts[30])
     preview = Preview(shell_volume(), (1.0, 1.0, 1.0), 40)
     look = shell_look(preview, kind="mr", rules=dataclasses.replace(RULES, fill_share=share + offset))
     assert look.opacities[10] == (RULES.opacity_high if fills else RULES.opacity_low)
+    # Its partial volume with the air (bin 0), below its peak (bin 10), is ramped in as the share of shell a voxel
+    # holds: bin 5 is half shell. Above the peak it is the shell.
+    if fills:
+        assert look.opacities[5] == pytest.approx(0.5 * RULES.opacity_high)
+        assert look.opacities[9] == pytest.approx(0.9 * RULES.opacity_high)
+    else:
+        assert look.opacities[5] == look.opacities[9] == RULES.opacity_low
+    assert look.opacities[15] == look.opacities[10]
 
 
 def test_tissue_colours_follow_intensity_and_are_shared_by_their_classes():

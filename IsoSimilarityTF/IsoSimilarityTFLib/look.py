@@ -7,8 +7,10 @@ units, so a CT in Hounsfield units, the same CT as 16-bit stored values or as an
 the same tissues, the same opacities and the same picture.
 
 1. **Which tissues are shown.** Not the background, not a tissue most of whose voxels touch it (noise in the air,
-   the partial-volume rim: fog); of the others, whole tissues, the largest first, while they hold at most
-   ``max_classes`` classes; and the densest real tissue always.
+   the partial-volume rim) or whose largest class lies within :attr:`.LookRules.fog_separation` noise widths above
+   the background's (fog; its mean would follow its partial-volume tail down to the background); of the others,
+   whole tissues, the largest first, while they hold at most ``max_classes`` classes; and the densest real tissue
+   always.
 2. **A monotone start**, as every Slicer preset: opacity per mm rises with intensity, from
    :attr:`.LookRules.opacity_low` for the lowest shown tissue to :attr:`.LookRules.opacity_high` for the densest,
    linear in their rank.
@@ -20,7 +22,8 @@ the same tissues, the same opacities and the same picture.
    :attr:`.LookRules.seen` of that light must still reach the eye. Where it does not, those tissues are made clearer,
    by the factor the measured transmittance asks for (``T ** s = seen``), and the picture is rendered again: Ma &
    Entezari's loop, which raises the least visible feature until it is seen, turned round, since a feature is already
-   at the top of the ramp.
+   at the top of the ramp. Other data than CT-like (MRI) show the tissue met first as a surface instead
+   (:meth:`_VisibilityStep.outer_surface`).
 4. **Soft boundaries** (:func:`ramped_opacity`): opacity climbs across a step between two bins over the noise width
    of the intensity model, on the side of the more opaque bin, so the voxel staircase of a coarse volume is not
    drawn as black contour lines and hidden bins stay hidden.
@@ -251,11 +254,12 @@ def default_look(
     # background's intensity than noise explains: the tissue's mean follows its partial-volume tail down to the
     # background), whole tissues, largest first, up to `max_classes` classes, and the densest real one always.
     background_bin = float(class_bins[is_background][0]) if is_background.any() else -np.inf
+    peak = np.array([_largest_class(tissue_of_class, voxels, t) for t in range(n_tissues)], dtype=np.intp)
     inner = [
         t
         for t in foreground
         if tissue_contact[t] <= rules.rim_contact
-        and class_bins[_largest_class(tissue_of_class, voxels, t)] - background_bin >= rules.fog_separation * noise_sd
+        and class_bins[peak[t]] - background_bin >= rules.fog_separation * noise_sd
     ] or foreground
     classes_in = np.bincount(tissue_of_class, minlength=n_tissues)
     shown: set[int] = set()
@@ -277,7 +281,18 @@ def default_look(
             tissue_opacity[t] = rules.opacity_low  # what a user who shows it starts from
     shares = None
     if preview is not None and labels is not None and shown_sorted:
-        step = _VisibilityStep(preview, labels, tissue_of_class, shown_sorted, tissue_bin, noise_sd, rules)
+        step = _VisibilityStep(
+            preview,
+            labels,
+            tissue_of_class,
+            shown_sorted,
+            tissue_bin,
+            peak,
+            class_bins,
+            background_bin,
+            noise_sd,
+            rules,
+        )
         real_shown = [t for t in shown_sorted if share[t] >= rules.real_share]
         if kind == "ct":
             ordered = np.array(foreground)
@@ -403,6 +418,10 @@ class _VisibilityStep:
         tissue_of_class: ``(n_classes,)`` tissue of each class.
         shown: the shown tissues (the others stay clear).
         tissue_bin: ``(n_tissues,)`` mean bin of each tissue.
+        peak: ``(n_tissues,)`` each tissue's largest class: where the tissue itself lies; its classes below that one
+            are its partial volume.
+        class_bins: ``(n_classes,)`` mean bin of each class.
+        background_bin: mean bin of the background (-inf without one).
         noise_sd: noise width in bins.
         rules: the thresholds.
     """
@@ -414,6 +433,9 @@ class _VisibilityStep:
         tissue_of_class: np.ndarray,
         shown: list[int],
         tissue_bin: np.ndarray,
+        peak: np.ndarray,
+        class_bins: np.ndarray,
+        background_bin: float,
         noise_sd: float,
         rules: LookRules = RULES,
     ) -> None:
@@ -424,16 +446,22 @@ class _VisibilityStep:
         self.bins_of_class = np.bincount(self.labels, minlength=len(tissue_of_class))
         self.shown = np.isin(np.arange(self.n_tissues), shown)
         self.tissue_bin = tissue_bin
+        self.peak = np.asarray(peak)
+        self.class_bins = np.asarray(class_bins, dtype=np.float64)
+        self.background_bin = float(background_bin)
         self.noise_sd = float(noise_sd)
         self.rules = rules
         self.rays = preview.rays_crossing(self.tissue_of_bin, self.n_tissues)
         # Partial volume of a feature: (first bin, lower tissue, feature) where its ramp starts (see show_features).
         self.ramps: list[tuple[int, int, int]] = []
+        # Tissues whose partial volume with the background is ramped in (see outer_surface).
+        self.skins: list[int] = []
         self._last_render: tuple[Optional[np.ndarray], np.ndarray] = (None, np.zeros(0))
 
     def class_opacity(self, opacity: np.ndarray) -> np.ndarray:
         """``(n_classes,)`` opacity per mm of each class: its tissue's (0 where not shown); in a feature's partial
-        volume, the mean over the class's bins of a ramp up to the feature's opacity."""
+        volume, the mean over the class's bins of a ramp up to the feature's opacity; in a skin's partial volume
+        with the background, the share of the tissue a bin holds times its opacity."""
         per_bin = np.where(self.shown, opacity, 0.0)[self.tissue_of_bin]
         for start, lower, feature in self.ramps:
             end = int(np.flatnonzero(self.tissue_of_bin == feature)[0])
@@ -443,6 +471,11 @@ class _VisibilityStep:
             share = (inside - self.tissue_bin[lower]) / (self.tissue_bin[feature] - self.tissue_bin[lower])
             ramp = opacity[lower] + (opacity[feature] - opacity[lower]) * share
             per_bin[inside] = np.maximum(per_bin[inside], ramp)
+        for tissue in self.skins:
+            inside = np.flatnonzero((self.tissue_of_bin == tissue) & (self.labels < self.peak[tissue]))
+            # A voxel of value v holds a share (v - background) / (peak - background) of the tissue.
+            span = self.class_bins[self.peak[tissue]] - self.background_bin
+            per_bin[inside] *= np.clip((inside - self.background_bin) / span, 0.0, 1.0)
         return np.bincount(self.labels, weights=per_bin, minlength=self.bins_of_class.size) / np.maximum(
             self.bins_of_class, 1
         )
@@ -527,14 +560,17 @@ class _VisibilityStep:
     def outer_surface(self, opacity: np.ndarray, real: list[int], share: np.ndarray) -> np.ndarray:
         """Other data: the real tissue that encloses the others (met first by most rays through it and another) is
         made a surface where it lies, as MR-Default shows a head's skin and a brain's cortex: seen
-        (:meth:`make_seen`), and at the ramp's top where it fills the object (``share`` ``(n_tissues,)`` of the
-        foreground's voxels above :attr:`.LookRules.fill_share`)."""
+        (:meth:`make_seen`); where it fills the object (``share`` ``(n_tissues,)`` of the foreground's voxels above
+        :attr:`.LookRules.fill_share`), at the ramp's top, its partial volume with the background ramped in as the
+        share of the tissue a voxel holds (an opaque tissue would draw its blurred skin, not the skin)."""
         if not real:
             return opacity
         outer = real[int(np.argmax(first_met(self.preview, self.tissue_of_bin, real)))] if len(real) > 1 else real[0]
         opacity = self.make_seen(opacity, outer)
         if share[outer] > self.rules.fill_share:
             opacity[outer] = max(opacity[outer], self.rules.opacity_high)
+            if np.isfinite(self.background_bin):
+                self.skins.append(outer)
         return opacity
 
 
