@@ -150,6 +150,23 @@ def test_a_tissue_is_fog_where_its_largest_class_lies_not_where_its_mean_does(ga
     assert look.visible == [False, shown, shown, shown, True]
 
 
+@pytest.mark.parametrize("kind, offset, filled", [("mr", -0.01, True), ("mr", 0.01, False), ("ct", -0.01, False)])
+def test_in_a_surface_a_tissue_between_two_shown_ones_is_shown(kind, offset, filled):
+    # With room for 2 classes, the largest tissue (classes 1-2, `share` of the foreground) is shown and the densest
+    # real one (class 4) always. Where the largest fills the object (fill_share just under its share) on data that
+    # are not CT-like, it is the object's surface and the tissue between them (class 3) is shown too, past
+    # max_classes; a stray tissue above the densest real one (class 5, under 1% of the voxels) is not between two
+    # shown ones and stays hidden.
+    voxels = [10_000, 2000, 2000, 1000, 500, 10]
+    share = 4000 / sum(voxels[1:])
+    rules = dataclasses.replace(RULES, fill_share=share + offset)
+    look = default_look(
+        make_classes(voxels), np.array([0, 1, 1, 2, 3, 4]), np.arange(6.0) * 10, kind, noise_sd=0.2, max_classes=2,
+        rules=rules,
+    )  # fmt: skip
+    assert look.visible == [False, True, True, filled, True, False]
+
+
 # The visibility step -------------------------------------------------------------------------------------------------
 
 
@@ -536,14 +553,15 @@ def test_a_design_with_a_single_class_shows_nothing():
 
 
 def test_max_classes_counts_classes_in_whole_tissues():
-    """Tissues of 4, 3 and 2 classes (largest first) and a dense one: 7 classes take the first two whole tissues."""
-    voxels = [9000, 900, 900, 900, 900, 700, 700, 700, 400, 400, 300]
-    tissue_of = np.array([0, 1, 1, 1, 1, 2, 2, 2, 3, 3, 4])
+    """Tissues of 2, 4 and 3 classes (the first the smallest, below the others) and a dense one: 7 classes take the
+    two largest whole tissues; the smallest lies below every shown one, so no gap rule shows it."""
+    voxels = [9000, 400, 400, 900, 900, 900, 900, 700, 700, 700, 300]
+    tissue_of = np.array([0, 1, 1, 2, 2, 2, 2, 3, 3, 3, 4])
     classes = make_classes(voxels)
-    values = np.array([0.0, 10, 11, 12, 13, 20, 21, 22, 30, 31, 60])
+    values = np.array([0.0, 5, 6, 10, 11, 12, 13, 20, 21, 22, 60])
     visible = default_look(classes, tissue_of, values, "mr", max_classes=7).visible
-    assert sum(visible) == 8 and visible[1:8] == [True] * 7 and visible[-1]  # plus the densest real tissue
-    assert not any(visible[8:10])
+    assert sum(visible) == 8 and visible[3:10] == [True] * 7 and visible[-1]  # plus the densest real tissue
+    assert not any(visible[1:3])
     assert default_look(classes, tissue_of, values, "mr", max_classes=0).visible == [False] * 10 + [True]
 
 

@@ -9,8 +9,12 @@ the same tissues, the same opacities and the same picture.
 1. **Which tissues are shown.** Not the background, not a tissue most of whose voxels touch it (noise in the air,
    the partial-volume rim) or whose largest class lies within :attr:`.LookRules.fog_separation` noise widths above
    the background's (fog; its mean would follow its partial-volume tail down to the background); of the others,
-   whole tissues, the largest first, while they hold at most ``max_classes`` classes; and the densest real tissue
-   always.
+   whole tissues, the largest first, while they hold at most ``max_classes`` classes; the densest real tissue
+   always; and on data that are not CT-like, where one tissue fills the object (more than
+   :attr:`.LookRules.fill_share` of the foreground's voxels: a surface, see :meth:`_VisibilityStep.outer_surface`),
+   every tissue lying between two shown ones, as
+   every preset's ramp shows all values above its threshold (hidden, it would punch holes where the surface passes
+   through its values: a head MRI's skin, between its grey matter and its fat).
 2. **A monotone start**, as every Slicer preset: opacity per mm rises with intensity, from
    :attr:`.LookRules.opacity_low` for the lowest shown tissue to :attr:`.LookRules.opacity_high` for the densest,
    linear in their rank.
@@ -226,7 +230,8 @@ def default_look(
         preview: the low-resolution volume the visibility step renders (None: the monotone start only).
         colors: ``"ramp"`` (one ramp colour per tissue) or ``"distinct"`` (one palette colour per tissue, by size).
         max_classes: tissues are shown whole, the largest first, while they hold at most this many classes (the
-            densest real tissue always, besides them).
+            densest real tissue always, besides them, and every tissue between two shown ones where one tissue fills
+            the object on data that are not CT-like).
         rules: the thresholds.
     """
     if kind not in KINDS:
@@ -252,7 +257,8 @@ def default_look(
 
     # 1. Visible tissues: not fog (on the background's fringe, or where its largest class lies no further above the
     # background's intensity than noise explains: the tissue's mean follows its partial-volume tail down to the
-    # background), whole tissues, largest first, up to `max_classes` classes, and the densest real one always.
+    # background), whole tissues, largest first, up to `max_classes` classes, the densest real one always, and, in
+    # a surface (not CT-like data, an object one tissue fills), every one between two shown ones.
     background_bin = float(class_bins[is_background][0]) if is_background.any() else -np.inf
     peak = np.array([_largest_class(tissue_of_class, voxels, t) for t in range(n_tissues)], dtype=np.intp)
     inner = [
@@ -269,6 +275,11 @@ def default_look(
     real = [t for t in foreground if share[t] >= rules.real_share]
     if real:
         shown.add(max(real, key=lambda t: tissue_bin[t]))
+    if kind != "ct" and any(share[t] > rules.fill_share for t in shown):
+        # One tissue fills the object and is drawn as its surface (step 3): one hidden between two shown ones would
+        # punch holes in it. (On CT-like data it is cleared around the dense tail instead.)
+        low, high = min(tissue_bin[t] for t in shown), max(tissue_bin[t] for t in shown)
+        shown |= {t for t in inner if low < tissue_bin[t] < high}
     shown_sorted = sorted(shown, key=lambda t: tissue_bin[t])
 
     # 2. The monotone start, 3. the visibility step.
