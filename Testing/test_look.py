@@ -10,6 +10,7 @@ from IsoSimilarityTFLib.classes import IsovalueClass
 from IsoSimilarityTFLib.look import (
     RAMP,
     SHOWN_PLACE,
+    _VisibilityStep,
     bin_opacity_of,
     default_look,
     dense_tail,
@@ -150,20 +151,23 @@ def test_a_tissue_is_fog_where_its_largest_class_lies_not_where_its_mean_does(ga
     assert look.visible == [False, shown, shown, shown, True]
 
 
-@pytest.mark.parametrize("kind, offset, filled", [("mr", -0.01, True), ("mr", 0.01, False), ("ct", -0.01, False)])
-def test_in_a_surface_a_tissue_between_two_shown_ones_is_shown(kind, offset, filled):
+@pytest.mark.parametrize(
+    "kind, offset, rim, filled",
+    [("mr", -0.01, False, True), ("mr", 0.01, False, False), ("ct", -0.01, False, False), ("mr", -0.01, True, False)],
+)
+def test_in_a_surface_a_tissue_between_two_shown_ones_is_shown(kind, offset, rim, filled):
     # With room for 2 classes, the largest tissue (classes 1-2, `share` of the foreground) is shown and the densest
     # real one (class 4) always. Where the largest fills the object (fill_share just under its share) on data that
     # are not CT-like, it is the object's surface and the tissue between them (class 3) is shown too, past
-    # max_classes; a stray tissue above the densest real one (class 5, under 1% of the voxels) is not between two
-    # shown ones and stays hidden.
+    # max_classes, unless it lies on the background's fringe (`rim`: most of its voxels touch it); a stray tissue
+    # above the densest real one (class 5, under 1% of the voxels) is not between two shown ones and stays hidden.
     voxels = [10_000, 2000, 2000, 1000, 500, 10]
     share = 4000 / sum(voxels[1:])
     rules = dataclasses.replace(RULES, fill_share=share + offset)
+    classes = make_classes(voxels, contact=[1.0, 0.0, 0.0, 0.9 if rim else 0.0, 0.0, 0.0])
     look = default_look(
-        make_classes(voxels), np.array([0, 1, 1, 2, 3, 4]), np.arange(6.0) * 10, kind, noise_sd=0.2, max_classes=2,
-        rules=rules,
-    )  # fmt: skip
+        classes, np.array([0, 1, 1, 2, 3, 4]), np.arange(6.0) * 10, kind, noise_sd=0.2, max_classes=2, rules=rules
+    )
     assert look.visible == [False, True, True, filled, True, False]
 
 
@@ -337,6 +341,44 @@ def test_an_outer_tissue_that_fills_the_object_takes_the_ramps_top(offset, fills
     else:
         assert look.opacities[5] == look.opacities[9] == RULES.opacity_low
     assert look.opacities[15] == look.opacities[10]
+
+
+def test_a_skin_ramps_to_its_largest_class_not_its_mean():
+    # A layer of bin 6 over the shell pulls the shell tissue's mean below bin 10, where its largest class lies: the
+    # skin's share is measured up to the largest class, so bin 8 holds 0.8 of the shell.
+    bins = shell_volume()
+    z, y, x = np.indices(bins.shape) - (bins.shape[0] - 1) / 2
+    bins[(np.sqrt(x**2 + y**2 + z**2) >= 17) & (np.sqrt(x**2 + y**2 + z**2) < 19)] = 6
+    counts = np.bincount(bins.ravel(), minlength=40)
+    assert (6 * counts[6] + 10 * counts[10]) / (counts[6] + counts[10]) < 9.0 and counts[10] > counts[6]
+    voxels = counts.tolist()
+    tissue_of = np.select([np.arange(40) < 5, np.arange(40) < 20], [0, 1], 2)
+    look = default_look(
+        make_classes(voxels), tissue_of, np.arange(40.0), "mr", labels=np.arange(40), class_bins=np.arange(40.0),
+        preview=Preview(bins, (1.0, 1.0, 1.0), 40),
+    )  # fmt: skip
+    assert look.opacities[10] == RULES.opacity_high
+    assert look.opacities[8] == pytest.approx(0.8 * RULES.opacity_high)
+
+
+@pytest.mark.parametrize("background_bin, skins", [(-np.inf, []), (0.0, [1])])
+def test_a_skin_is_ramped_against_a_background_only(background_bin, skins):
+    # The filling shell as the outer surface, with the background at bin 0, or without one (background="none",
+    # -inf): then nothing is ramped against it, and every opacity stays a number.
+    bins = shell_volume()
+    bins[bins == 10] = np.where(np.indices(bins.shape)[0][bins == 10] % 2 == 0, 10, 7)  # classes 7 and 10 in the shell
+    tissue_of = np.select([np.arange(40) < 5, np.arange(40) < 20], [0, 1], 2)
+    step = _VisibilityStep(
+        Preview(bins, (1.0, 1.0, 1.0), 40), np.arange(40), tissue_of, [1, 2], np.array([0.0, 8.5, 30.0]),
+        np.array([0, 10, 30]), np.arange(40.0), background_bin, noise_sd=1.0,
+    )  # fmt: skip
+    opacity = step.outer_surface(
+        np.array([0.0, RULES.opacity_low, RULES.opacity_high]), [1, 2], np.array([0, 0.9, 0.1])
+    )
+    assert step.skins == skins and opacity[1] == RULES.opacity_high
+    class_opacity = step.class_opacity(opacity)
+    assert np.all(np.isfinite(class_opacity))
+    assert class_opacity[7] == pytest.approx(0.7 * RULES.opacity_high if skins else RULES.opacity_high)
 
 
 def test_tissue_colours_follow_intensity_and_are_shared_by_their_classes():

@@ -10,9 +10,9 @@ the same tissues, the same opacities and the same picture.
    the partial-volume rim) or whose largest class lies within :attr:`.LookRules.fog_separation` noise widths above
    the background's (fog; its mean would follow its partial-volume tail down to the background); of the others,
    whole tissues, the largest first, while they hold at most ``max_classes`` classes; the densest real tissue
-   always; and on data that are not CT-like, where one tissue fills the object (more than
-   :attr:`.LookRules.fill_share` of the foreground's voxels: a surface, see :meth:`_VisibilityStep.outer_surface`),
-   every tissue lying between two shown ones, as
+   always; and on data that are not CT-like, where a shown tissue fills the object (more than
+   :attr:`.LookRules.fill_share` of the foreground's voxels; met first, it is the object's surface, see
+   :meth:`_VisibilityStep.outer_surface`), every tissue lying between two shown ones, as
    every preset's ramp shows all values above its threshold (hidden, it would punch holes where the surface passes
    through its values: a head MRI's skin, between its grey matter and its fat).
 2. **A monotone start**, as every Slicer preset: opacity per mm rises with intensity, from
@@ -230,8 +230,8 @@ def default_look(
         preview: the low-resolution volume the visibility step renders (None: the monotone start only).
         colors: ``"ramp"`` (one ramp colour per tissue) or ``"distinct"`` (one palette colour per tissue, by size).
         max_classes: tissues are shown whole, the largest first, while they hold at most this many classes (the
-            densest real tissue always, besides them, and every tissue between two shown ones where one tissue fills
-            the object on data that are not CT-like).
+            densest real tissue always, besides them, and every tissue between two shown ones where a shown tissue
+            fills the object on data that are not CT-like).
         rules: the thresholds.
     """
     if kind not in KINDS:
@@ -258,7 +258,7 @@ def default_look(
     # 1. Visible tissues: not fog (on the background's fringe, or where its largest class lies no further above the
     # background's intensity than noise explains: the tissue's mean follows its partial-volume tail down to the
     # background), whole tissues, largest first, up to `max_classes` classes, the densest real one always, and, in
-    # a surface (not CT-like data, an object one tissue fills), every one between two shown ones.
+    # an object a shown tissue fills (on data that are not CT-like), every one between two shown ones.
     background_bin = float(class_bins[is_background][0]) if is_background.any() else -np.inf
     peak = np.array([_largest_class(tissue_of_class, voxels, t) for t in range(n_tissues)], dtype=np.intp)
     inner = [
@@ -276,8 +276,8 @@ def default_look(
     if real:
         shown.add(max(real, key=lambda t: tissue_bin[t]))
     if kind != "ct" and any(share[t] > rules.fill_share for t in shown):
-        # One tissue fills the object and is drawn as its surface (step 3): one hidden between two shown ones would
-        # punch holes in it. (On CT-like data it is cleared around the dense tail instead.)
+        # A tissue fills the object, its surface where it is met first (step 3): one hidden between two shown ones
+        # would punch holes in it. (On CT-like data it is cleared around the dense tail instead.)
         low, high = min(tissue_bin[t] for t in shown), max(tissue_bin[t] for t in shown)
         shown |= {t for t in inner if low < tissue_bin[t] < high}
     shown_sorted = sorted(shown, key=lambda t: tissue_bin[t])
@@ -359,6 +359,12 @@ def default_look(
         for c in classes
     ]
     return Look(colors_out, [float(a) for a in opacity], visible, shares)
+
+
+def _share_of_upper(bins: np.ndarray, low: float, high: float) -> np.ndarray:
+    """``bins.shape`` share of the upper of two materials, of mean bins ``low < high``, that a voxel in each bin
+    holds: linear between them (partial volume), clipped to [0, 1]."""
+    return np.clip((np.asarray(bins, dtype=np.float64) - low) / (high - low), 0.0, 1.0)
 
 
 def _largest_class(tissue_of_class: np.ndarray, voxels: np.ndarray, tissue: int) -> int:
@@ -478,15 +484,14 @@ class _VisibilityStep:
             end = int(np.flatnonzero(self.tissue_of_bin == feature)[0])
             inside = np.arange(start, end)
             inside = inside[self.shown[self.tissue_of_bin[inside]]]
-            # A voxel of value v holds a share (v - lower mean) / (feature mean - lower mean) of the feature.
-            share = (inside - self.tissue_bin[lower]) / (self.tissue_bin[feature] - self.tissue_bin[lower])
+            share = _share_of_upper(inside, self.tissue_bin[lower], self.tissue_bin[feature])
             ramp = opacity[lower] + (opacity[feature] - opacity[lower]) * share
             per_bin[inside] = np.maximum(per_bin[inside], ramp)
         for tissue in self.skins:
-            inside = np.flatnonzero((self.tissue_of_bin == tissue) & (self.labels < self.peak[tissue]))
-            # A voxel of value v holds a share (v - background) / (peak - background) of the tissue.
-            span = self.class_bins[self.peak[tissue]] - self.background_bin
-            per_bin[inside] *= np.clip((inside - self.background_bin) / span, 0.0, 1.0)
+            # Every shown bin below the skin's largest class: its own partial volume with the background, and a
+            # stray tissue there that follows its opacity (_follow_real).
+            inside = np.flatnonzero(self.shown[self.tissue_of_bin] & (self.labels < self.peak[tissue]))
+            per_bin[inside] *= _share_of_upper(inside, self.background_bin, self.class_bins[self.peak[tissue]])
         return np.bincount(self.labels, weights=per_bin, minlength=self.bins_of_class.size) / np.maximum(
             self.bins_of_class, 1
         )
@@ -572,15 +577,18 @@ class _VisibilityStep:
         """Other data: the real tissue that encloses the others (met first by most rays through it and another) is
         made a surface where it lies, as MR-Default shows a head's skin and a brain's cortex: seen
         (:meth:`make_seen`); where it fills the object (``share`` ``(n_tissues,)`` of the foreground's voxels above
-        :attr:`.LookRules.fill_share`), at the ramp's top, its partial volume with the background ramped in as the
-        share of the tissue a voxel holds (an opaque tissue would draw its blurred skin, not the skin)."""
+        :attr:`.LookRules.fill_share`), at least at the ramp's top, with the shown bins below its largest class (its
+        partial volume with the background) ramped in as the share of the tissue a voxel holds: an opaque tissue
+        would draw its blurred skin, not the skin. Called once per step."""
         if not real:
             return opacity
-        outer = real[int(np.argmax(first_met(self.preview, self.tissue_of_bin, real)))] if len(real) > 1 else real[0]
+        outer = real[0]
+        if len(real) > 1:
+            outer = real[int(np.argmax(first_met(self.preview, self.tissue_of_bin, real)))]
         opacity = self.make_seen(opacity, outer)
         if share[outer] > self.rules.fill_share:
             opacity[outer] = max(opacity[outer], self.rules.opacity_high)
-            if np.isfinite(self.background_bin):
+            if -np.inf < self.background_bin < self.class_bins[self.peak[outer]]:  # a background below it
                 self.skins.append(outer)
         return opacity
 

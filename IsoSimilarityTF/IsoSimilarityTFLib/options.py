@@ -128,7 +128,7 @@ OPTIONS: dict[str, Option] = {
         Option("convergence_iter", 15, "int", "stable iterations that mean convergence", "--convergence-iter",
                minimum=1, maximum=10_000, metavar="N"),
         Option("max_classes", 15, "int", "classes shown besides the background, whole tissues, largest first; the "
-               "densest real tissue, and every tissue between two shown ones where one tissue is the object's surface, "
+               "densest real tissue, and every tissue between two shown ones where a shown tissue fills the object, "
                "are shown even past it (0: that tissue alone)", "--max-classes", minimum=0,
                maximum=1000, metavar="N"),
         Option("background", "largest", "choice", "which class is the hidden background", "--background",

@@ -65,8 +65,8 @@ class LookRules:
         fill_share: a tissue holding more than this share of the foreground's voxels fills the object (a head MRI's
             skin, muscle and grey matter in one tissue). As the outer tissue, seen through its whole depth it is a
             veil over everything inside, so it takes the ramp's top, as a surface; a thinner layer (the
-            partial-volume edge of a brain's cortex) is seen within its own depth. And no tissue between two shown
-            ones is hidden: it would punch holes in that surface.
+            partial-volume edge of a brain's cortex) is seen within its own depth. And in an object a shown tissue
+            fills, no tissue between two shown ones is hidden: it would punch holes in that surface.
         dense_share: the *dense parts* look promises that the dense classes give at least this share of the picture:
             they are what it shows; what is left of the bulk around them is a context taking at most half the
             least share the *see-through* look keeps it at (``1 - see_through[0] / 2``), so that the two looks are
