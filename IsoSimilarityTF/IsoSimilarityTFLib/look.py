@@ -52,7 +52,7 @@ import numpy as np
 
 from .classes import PALETTE, IsovalueClass
 from .options import COLOR_SCHEMES, GRADIENT_OPACITY, KINDS  # noqa: F401 (GRADIENT_OPACITY: still importable here)
-from .roles import RULES, LookRules, tissue_mean_bins
+from .roles import RULES, LookRules, largest_class, tissue_mean_bins
 from .visibility import Preview, enclosure, first_met, visibility_histogram
 
 # Tissue colour ramp, low to high intensity: dark red, tan, ivory, white (in 0..1). The tan is MR-Default's colour
@@ -260,7 +260,7 @@ def default_look(
     # background), whole tissues, largest first, up to `max_classes` classes, the densest real one always, and, in
     # an object a shown tissue fills (on data that are not CT-like), every one between two shown ones.
     background_bin = float(class_bins[is_background][0]) if is_background.any() else -np.inf
-    peak = np.array([_largest_class(tissue_of_class, voxels, t) for t in range(n_tissues)], dtype=np.intp)
+    peak = np.array([largest_class(tissue_of_class, voxels, t) for t in range(n_tissues)], dtype=np.intp)
     inner = [
         t
         for t in foreground
@@ -365,12 +365,6 @@ def _share_of_upper(bins: np.ndarray, low: float, high: float) -> np.ndarray:
     """``bins.shape`` share of the upper of two materials, of mean bins ``low < high``, that a voxel in each bin
     holds: linear between them (partial volume), clipped to [0, 1]."""
     return np.clip((np.asarray(bins, dtype=np.float64) - low) / (high - low), 0.0, 1.0)
-
-
-def _largest_class(tissue_of_class: np.ndarray, voxels: np.ndarray, tissue: int) -> int:
-    """Id of the class of ``tissue`` with the most voxels (the first of equals)."""
-    members = np.flatnonzero(tissue_of_class == tissue)
-    return int(members[np.argmax(voxels[members])])
 
 
 def fringe_cores_apart(

@@ -140,8 +140,7 @@ def class_roles(
     near = np.abs(class_bins - background_bin) < rules.fog_separation * noise_sd
     roles = []
     for c in classes:
-        members = np.flatnonzero(tissue_of_class == tissue_of_class[c.id])
-        tissue_near = near[members[int(np.argmax(voxels[members]))]]  # where its tissue's largest class lies
+        tissue_near = near[largest_class(tissue_of_class, voxels, tissue_of_class[c.id])]
         if c.background:
             roles.append("background")
         elif near[c.id] and (tissue_near or c.background_contact > rules.rim_contact):
@@ -153,6 +152,18 @@ def class_roles(
         else:
             roles.append("bulk")
     return roles
+
+
+def largest_class(tissue_of_class: np.ndarray, voxels: np.ndarray, tissue: int) -> int:
+    """Id of the class of ``tissue`` with the most voxels (the first of equals): where the tissue itself lies, its
+    mean following its partial-volume tail.
+
+    Args:
+        tissue_of_class: ``(n_classes,)`` tissue id per class. voxels: ``(n_classes,)``. tissue: a tissue id that has
+            classes.
+    """
+    members = np.flatnonzero(np.asarray(tissue_of_class) == tissue)
+    return int(members[np.argmax(np.asarray(voxels)[members])])
 
 
 def dense_classes(
@@ -188,9 +199,7 @@ def main_material_bin(
         class_voxels: ``(n_classes,)`` voxels per class, 0 for the background. tissue_voxels: ``(n_tissues,)`` the
             same per tissue. tissue_bin: ``(n_tissues,)`` mean bin per tissue. class_bins: ``(n_classes,)``.
     """
-    largest_tissue = float(tissue_bin[int(np.argmax(tissue_voxels))])
-    largest_class = float(class_bins[int(np.argmax(class_voxels))])
-    return max(largest_tissue, largest_class)
+    return max(float(tissue_bin[int(np.argmax(tissue_voxels))]), float(class_bins[int(np.argmax(class_voxels))]))
 
 
 def tissue_mean_bins(
