@@ -230,6 +230,63 @@ def test_verdict_applies_the_issue_targets():
     assert compare.ratio(2.0, 4.0) == 0.5 and compare.ratio(1.0, 0.0) is None
 
 
+def _kept_case(shares: dict, brightness: dict, noise: dict, shown_for=("core", "envelope")) -> dict:
+    """One volume of compare.json as kept_summary reads it: per look, each structure's share, B and N (both views)."""
+    compare = _load("compare")
+    looks = {compare.OURS: 0, compare.KEPT: 1}
+    view = {
+        "tissues": {look: {t: {"share": shares[look][i]} for i, t in enumerate(shown_for)} for look in looks},
+        "metrics": {look: {"brightness": brightness[look], "colour_noise": noise[look]} for look in looks},
+    }
+    return {
+        "kept": ["CT-AAA", 100.0],
+        "shown_for": list(shown_for),
+        "best_look": None,
+        "tissues": {v: view["tissues"] for v in compare.VIEWS},
+        "metrics": {v: view["metrics"] for v in compare.VIEWS},
+    }
+
+
+@pytest.mark.parametrize(("envelope", "keeps_up"), [(0.59, True), (0.58, False)])
+def test_the_kept_preset_is_matched_structure_by_structure(envelope, keeps_up):
+    # The kept picture shows the envelope at 0.6: ours must too (within SHARE_TOLERANCE), whatever the sum says.
+    compare = _load("compare")
+    assert compare.SHARE_TOLERANCE == 0.01
+    case = _kept_case(
+        {compare.OURS: (1.0 - envelope, envelope), compare.KEPT: (0.4, 0.6)},
+        {compare.OURS: 100.0, compare.KEPT: 100.0},
+        {compare.OURS: 1.0, compare.KEPT: 1.0},
+    )
+    lines = compare.kept_summary({"heptane": case})
+    rows = [line for line in lines if line.startswith("| heptane |")]
+    assert len(rows) == 2 and all(("| yes |" in row) == keeps_up for row in rows)
+    assert f"on **{int(keeps_up)} of 1** volumes" in lines[-1]
+
+
+@pytest.mark.parametrize(
+    ("brightness", "noise", "keeps_up"), [(80.0, 1.3, True), (79.0, 1.0, False), (100.0, 1.31, False)]
+)
+def test_the_kept_preset_is_matched_in_brightness_and_colour_noise(brightness, noise, keeps_up):
+    compare = _load("compare")
+    case = _kept_case(
+        {compare.OURS: (0.9,), compare.KEPT: (0.9,)},
+        {compare.OURS: brightness, compare.KEPT: 100.0},
+        {compare.OURS: noise, compare.KEPT: 1.0},
+        shown_for=("skull",),
+    )
+    lines = compare.kept_summary({"head": case})
+    assert f"on **{int(keeps_up)} of 1** volumes" in lines[-1]
+
+
+def test_volumes_without_a_kept_preset_have_no_kept_table():
+    compare = _load("compare")
+    case = _kept_case(
+        {compare.OURS: (0.9,), compare.KEPT: (0.9,)}, {compare.OURS: 1.0, compare.KEPT: 1.0},
+        {compare.OURS: 1.0, compare.KEPT: 1.0}, shown_for=("skull",),
+    )  # fmt: skip
+    assert compare.kept_summary({"phantom": {**case, "kept": None}}) == []
+
+
 def test_no_colour_noise_ratio_over_a_grey_picture():
     # Slicer's window/level ramp is grey: its colour noise is float rounding, and a ratio over it means nothing.
     compare = _load("compare")
@@ -303,6 +360,34 @@ def test_first_click_is_what_slicers_logic_recommends(tmp_path, dtype, high, pic
     boxes = [rendering.content_box(picture) for picture in pictures.values() if picture.any()]
     # One camera, framed onto the union of the looks: the largest content nearly fills the picture.
     assert max(max(b[1] - b[0], b[3] - b[2]) + 1 for b in boxes) >= 0.8 * 64
+
+
+def test_the_kept_preset_is_shifted_as_the_shift_slider_moves_it(tmp_path):
+    rendering = pytest.importorskip("isosimtf.rendering")
+    if not rendering.slicer_core_available():
+        pytest.skip("slicer-core is not installed")
+    compare = _load("compare")
+    values = _blob(np.int16, 400)
+    with rendering.HeadlessSlicer(size=(64, 64), presets_file=_logic_presets(tmp_path)) as headless:
+        volume_node = headless.add_volume(values)
+        looks = compare.prepare_looks(headless, volume_node, values, (1.0,) * 3, ("Steep",), kept=("Steep", 100.0))
+        assert [look.name for look in looks] == [compare.OURS, compare.FIRST_CLICK, "Steep", compare.KEPT]
+        assert "Steep, shift +100" in looks[-1].title
+        kept = looks[-1].property_node.GetVolumeProperty()
+        assert kept.GetScalarOpacity().GetValue(250.0) == pytest.approx(0.0)  # the preset's 150, moved by +100
+        assert kept.GetScalarOpacity().GetValue(375.0) == pytest.approx(0.45)  # halfway to its 400
+        assert kept.GetRGBTransferFunction().GetColor(100.0) == pytest.approx((1.0, 0.0, 0.0))  # its 0
+        # On a re-stored CT the shift is in HU, then mapped onto the stored values like the other presets.
+        stored = compare.prepare_looks(
+            headless, volume_node, values, (1.0,) * 3, (), storage=(0.5, 10.0), kept=("Steep", 100.0)
+        )
+        assert stored[-1].title.endswith("(mapped)")
+        opacity = stored[-1].property_node.GetVolumeProperty().GetScalarOpacity()
+        assert opacity.GetValue(135.0) == pytest.approx(0.0)  # 250 HU: the preset's 150 moved by +100, then stored
+        assert opacity.GetValue(197.5) == pytest.approx(0.45)
+        assert compare.prepare_looks(headless, volume_node, values, (1.0,) * 3, (), kept=("Missing", 0.0))[-1].name == (
+            compare.FIRST_CLICK
+        )  # a preset Slicer does not have: no kept column
 
 
 def test_the_best_look_of_the_gallery_joins_the_columns_when_it_beats_the_first_click(tmp_path):

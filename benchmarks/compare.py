@@ -68,7 +68,7 @@ from tissue_visibility import (  # noqa: E402
     tissue_summary,
     tissue_weights,
 )
-from volume_panel import HEAD_CT, PANEL, PanelVolume, ct_storage  # noqa: E402
+from volume_panel import HEAD_CT, PANEL, Kept, PanelVolume, ct_storage  # noqa: E402
 
 REPO = HERE.parent
 RESULTS = HERE / "results"
@@ -77,6 +77,8 @@ PICTURES = RESULTS / "pictures"
 VIEWS = ("anterior", "left")
 OURS = "ours"
 FIRST_CLICK = "first click"
+#: The preset a user would keep on a real volume of the shared panel, with its shift (its README's reading).
+KEPT = "kept"
 #: The look of our gallery that shows most of what the user scanned for, where it is not the first click.
 BEST_LOOK = "best look"
 
@@ -158,12 +160,19 @@ class Look:
 
 
 def prepare_looks(
-    headless: Any, volume_node: Any, values: np.ndarray, spacing, presets: Sequence[str], storage=None
+    headless: Any,
+    volume_node: Any,
+    values: np.ndarray,
+    spacing,
+    presets: Sequence[str],
+    storage=None,
+    kept: Kept | None = None,
 ) -> list[Look]:
     """Slicer's first click, ours and the presets as property nodes of one scene (the first click first made).
 
     ``storage``: ``(slope, offset)`` of a CT stored as ``slope * HU + offset``: the presets are mapped onto the stored
-    values (what a user does with the Shift slider, and for 8 bits a rescale too), titled "(mapped)".
+    values (what a user does with the Shift slider, and for 8 bits a rescale too), titled "(mapped)". ``kept``: the
+    preset a user would keep and its shift (in HU where there is a ``storage``), added last as :data:`KEPT`.
     """
     from IsoSimilarityTFLib import design_transfer_function
     from IsoSimilarityTFLib.mrml import apply_design
@@ -180,17 +189,32 @@ def prepare_looks(
     ours.design = design  # type: ignore[attr-defined]
 
     looks = [ours, first_look]
+    mapped = storage is not None and tuple(storage) != (1.0, 0.0)
     for name in presets:
-        preset = logic.GetPresetByName(name)
-        if preset is None:
-            continue
-        node = headless.scene.AddNewNodeByClass("vtkMRMLVolumePropertyNode", name)
-        node.CopyContent(preset)  # what the preset menu does (qSlicerVolumeRenderingPresetComboBox::applyPreset)
-        mapped = storage is not None and tuple(storage) != (1.0, 0.0)
-        if mapped:
-            map_property(node.GetVolumeProperty(), *storage)
-        looks.append(Look(name, f"{name} (mapped)" if mapped else name, node))
+        node = _preset_node(headless, name, 0.0, storage if mapped else None)
+        if node is not None:
+            looks.append(Look(name, f"{name} (mapped)" if mapped else name, node))
+    if kept is not None:
+        name, shift = kept
+        node = _preset_node(headless, name, shift, storage if mapped else None)
+        if node is not None:
+            looks.append(Look(KEPT, f"kept: {name}, shift {shift:+g}{' (mapped)' if mapped else ''}", node))
     return looks
+
+
+def _preset_node(headless: Any, name: str, shift: float, storage=None) -> Any:
+    """A property node holding preset ``name`` as the preset menu applies it, moved by the Shift slider's ``shift``
+    (volume units, or HU with a ``storage``) and then mapped onto stored values; None if Slicer has no such preset."""
+    preset = headless.volume_rendering_logic.GetPresetByName(name)
+    if preset is None:
+        return None
+    node = headless.scene.AddNewNodeByClass("vtkMRMLVolumePropertyNode", name)
+    node.CopyContent(preset)  # what the preset menu does (qSlicerVolumeRenderingPresetComboBox::applyPreset)
+    if shift:
+        map_property(node.GetVolumeProperty(), 1.0, shift)
+    if storage is not None:
+        map_property(node.GetVolumeProperty(), *storage)
+    return node
 
 
 def add_best_look(
@@ -203,8 +227,9 @@ def add_best_look(
     shown_for: Sequence[str],
 ) -> str | None:
     """Append the look of our gallery whose picture shows most of ``shown_for`` (the library's visibility
-    histogram, as ``look_panel.py`` measures it) as its own property node, unless it is the first click; return its
-    name (None without labels or when the first click is best)."""
+    histogram, as ``look_panel.py`` measures it; of equals, the one whose least shown structure gets most) as its own
+    property node, unless it is the first click; return its name (None without labels or when the first click is
+    best)."""
     from look_panel import label_fractions, picture_shares
 
     design = looks[0].design  # type: ignore[attr-defined]
@@ -216,10 +241,11 @@ def add_best_look(
     for look in design.looks:
         design.use_look(look.name)
         shares = picture_shares(design, fractions)[1]
-        shown[look.name] = sum(float(shares[list(names).index(n)]) for n in shown_for)
+        each = [float(shares[list(names).index(n)]) for n in shown_for]
+        shown[look.name] = (round(sum(each), 3), min(each))  # then, of equals, the one that shows each structure
     design.use_look(first)
     best = max(design.looks, key=lambda look: shown[look.name])
-    if shown[best.name] <= shown[first] + 1e-9:
+    if shown[best.name] <= shown[first]:
         return None
     node = headless.scene.AddNewNodeByClass("vtkMRMLVolumePropertyNode", f"{volume_node.GetName()} {best.name}")
     node.GetVolumeProperty().DeepCopy(design.volume_property(best))
@@ -390,7 +416,7 @@ def run_case(case: PanelVolume, presets: PresetsSource, size: int, gpu: bool, ba
     background = (0.0, 0.0, 0.0) if backdrop == "black" else None
     with HeadlessSlicer(size=(size, size), presets_file=presets.path, background=background) as headless:
         volume_node = headless.add_volume(values, name=case.key, ijk_to_ras=ijk_to_ras)
-        looks = prepare_looks(headless, volume_node, values, spacing, suited, storage)
+        looks = prepare_looks(headless, volume_node, values, spacing, suited, storage, case.kept)
         best_look = add_best_look(headless, volume_node, looks, values, labels, tissues, case.shown_for)
         for view in VIEWS:
             for name, picture in render_view(headless, volume_node, looks, view, size).items():
@@ -448,6 +474,7 @@ def run_case(case: PanelVolume, presets: PresetsSource, size: int, gpu: bool, ba
         "ratios": comparisons,
         "tissues": tissue_stats,
         "shown_for": list(case.shown_for),
+        "kept": list(case.kept) if case.kept else None,
         "fog": case.fog,
         "kind_detected": design.kind,
         "gpu_lookup_table": gpu_check,
@@ -547,6 +574,7 @@ def markdown(document: dict) -> str:
                 f"{_fmt(first.get('brightness_ratio'))} | {_fmt(first.get('colour_noise_ratio'))} |"
             )
     lines += visibility_summary(document["volumes"])
+    lines += kept_summary(document["volumes"])
     for key, case in document["volumes"].items():
         lines += [
             "",
@@ -644,6 +672,86 @@ def visibility_summary(volumes: dict) -> list[str]:
         names = ", ".join(storages)
         lines += ["", f"Head CT storages ({names}): largest spread of ours {spread:.3f} ({verdict_text})."]
     return lines
+
+
+#: "At least as well" as the kept preset: a share of what was scanned for at most this much below the preset's (the
+#: ray caster's sampling), and the issue's brightness and colour-noise targets against the kept picture.
+SHARE_TOLERANCE = 0.01
+
+
+def kept_summary(volumes: dict) -> list[str]:
+    """Markdown: per real volume and view, ours (the first click, then our best look) against the preset a user would
+    keep there, with its shift (``../shared/data/README.md``'s reading), rendered here through the same camera: the
+    share of the picture from what was scanned for, and brightness and colour noise against the kept picture."""
+    kept = {k: v for k, v in volumes.items() if v.get("kept") and v["shown_for"]}
+    if not kept:
+        return []
+    lines = [
+        "",
+        "## Against the preset a user would keep (the shared panel)",
+        "",
+        "The kept preset and shift are the reading of `../shared/data/README.md` (a demanding user's choice among the "
+        "presets of the volume's kind, shifted), rendered here beside ours. A view keeps up when ours shows each "
+        f"structure scanned for with at least the kept picture's share (within {SHARE_TOLERANCE:.0%}), at least "
+        f"{MIN_BRIGHTNESS_RATIO}x its brightness and at most {MAX_NOISE_RATIO}x its colour noise; a volume, when both "
+        "views do. Best look: the look of our gallery showing most of what was scanned for, where it is not the "
+        "first click, judged the same way.",
+        "",
+        "| volume | view | kept preset | scanned for | kept | first click | B ratio | N ratio | keeps up | "
+        "best look | its share | B ratio | N ratio | keeps up |",
+        "|---|---|---|---|---:|---:|---:|---:|---|---|---:|---:|---:|---|",
+    ]
+    first_ok, any_ok = [], []
+    for key, case in kept.items():
+        name, shift = case["kept"]
+        views_first, views_any = [], []
+        for view in VIEWS:
+            stats, metrics = case["tissues"][view], case["metrics"][view]
+            share = {look: _shares_text(stats[look], case["shown_for"]) for look in stats}
+            verdicts = {}
+            for look in (OURS, BEST_LOOK):
+                if look not in metrics:
+                    continue
+                b = ratio(metrics[look]["brightness"], metrics[KEPT]["brightness"])
+                n = ratio(metrics[look]["colour_noise"], metrics[KEPT]["colour_noise"], GREY_NOISE)
+                n_ok = n is None or n <= MAX_NOISE_RATIO  # a grey kept picture: no colour to compare with
+                # Each structure scanned for at least as well: a core and its envelope, not their sum.
+                shown = all(
+                    stats[look][t]["share"] >= stats[KEPT][t]["share"] - SHARE_TOLERANCE for t in case["shown_for"]
+                )
+                verdicts[look] = (b, n, shown and b is not None and b >= MIN_BRIGHTNESS_RATIO and n_ok)
+            b, n, ok = verdicts[OURS]
+            best = verdicts.get(BEST_LOOK)
+            views_first.append(ok)
+            views_any.append(ok or bool(best and best[2]))
+            best_cells = (
+                f"{case['best_look']} | {share[BEST_LOOK]} | {_fmt(best[0])} | {_fmt(best[1])} | "
+                f"{'yes' if best[2] else '**no**'}"
+                if best
+                else "- | - | - | - | -"
+            )
+            lines.append(
+                f"| {key} | {view} | {name}, shift {shift:+g} | {', '.join(case['shown_for'])} | "
+                f"{share[KEPT]} | {share[OURS]} | {_fmt(b)} | {_fmt(n)} | {'yes' if ok else '**no**'} | "
+                f"{best_cells} |"
+            )
+        first_ok.append(all(views_first))
+        any_ok.append(all(views_any))
+    lines += [
+        "",
+        f"The first click keeps up with the kept preset on **{sum(first_ok)} of {len(kept)}** volumes; the first click "
+        f"or the best look, on **{sum(any_ok)} of {len(kept)}**.",
+    ]
+    return lines
+
+
+def _shares_text(stats: dict, shown_for: Sequence[str]) -> str:
+    """The share of the picture from what was scanned for, and from each structure where there are several."""
+    total = _pct(sum(stats[t]["share"] for t in shown_for))
+    if len(shown_for) < 2:
+        return total
+    parts = ", ".join(f"{t} {_pct(stats[t]['share'])}" for t in shown_for)
+    return f"{total} ({parts})"
 
 
 def _pct(value: float | None) -> str:

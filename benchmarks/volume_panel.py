@@ -49,6 +49,10 @@ DENSE_HU = 300.0
 VOXEL_SIZE_SCALES = (0.05, 3.0)
 
 
+#: A preset of Slicer's ``presets.xml`` and the shift (volume units; the module's Shift slider) a user gave it.
+Kept = tuple[str, float]
+
+
 @dataclass(frozen=True)
 class PanelVolume:
     """One volume of the panel.
@@ -62,6 +66,8 @@ class PanelVolume:
         fog: the label name that must take no share of the picture (the air), or None.
         available: whether its data is on this machine.
         source: where the data comes from.
+        kept: the preset a demanding user would keep on it, and its shift (``../shared/data/README.md``'s reading;
+            the real volumes only), or None.
     """
 
     key: str
@@ -72,6 +78,7 @@ class PanelVolume:
     fog: str | None
     available: Callable[[], bool]
     source: str
+    kept: Kept | None = None
 
 
 def gaussian_blur(values: np.ndarray, sigma_vox: tuple[float, float, float]) -> np.ndarray:
@@ -842,7 +849,8 @@ Band = tuple[str, float, float]
 class RealVolume:
     """One file of :data:`SHARED_DATA` and the reading of its README: ``bands`` label the voxels (the first band
     that holds a value wins; the rest is "other"), ``shown_for`` the band(s) a user scanned it for, ``fog`` the band
-    that must give nothing, ``storage`` the map from HU where the values are HU."""
+    that must give nothing, ``storage`` the map from HU where the values are HU, ``kept`` the preset and shift of
+    the picture the README's reader kept (its "kept preset (shift)" column)."""
 
     key: str
     title: str
@@ -852,6 +860,7 @@ class RealVolume:
     fog: str | None
     storage: tuple[float, float] | None
     source: str
+    kept: Kept
 
     @property
     def path(self) -> Path:
@@ -864,34 +873,37 @@ INF = float("inf")
 REAL_VOLUMES: tuple[RealVolume, ...] = (
     RealVolume("ct-head-8bit-oblique", "Head CT, 8-bit export, oblique (real)", "CT",
                (("air", 0, 0), ("skull", 170, INF)), ("skull",), "air", None,
-               "niivue-images CT_pitch.nii.gz, courtesy of Paul Morgan (BSD-2)"),
+               "niivue-images CT_pitch.nii.gz, courtesy of Paul Morgan (BSD-2)", ("CT-AAA", 15)),
     RealVolume("cta-chest", "CT angiography of the chest, HU (real)", "CT",
                (("air and lungs", -INF, -500), ("contrast and bone", 250, INF)), ("contrast and bone",),
-               "air and lungs", (1.0, 0.0), "TotalSegmentator test data ct_cropped.nii.gz (Apache-2.0)"),
+               "air and lungs", (1.0, 0.0), "TotalSegmentator test data ct_cropped.nii.gz (Apache-2.0)",
+               ("CT-AAA", 100)),
     RealVolume("mr-brain-contrast", "Skull-stripped contrast T1 brain MRI (real)", "MRI",
                (("background", 0, 0), ("enhancing vessels", 650, INF), ("parenchyma", 350, 650)),
-               ("parenchyma", "enhancing vessels"), "background", None, "niivue-images MR_Gd.nii.gz (figshare)"),
+               ("parenchyma", "enhancing vessels"), "background", None, "niivue-images MR_Gd.nii.gz (figshare)",
+               ("CT-Chest-Contrast-Enhanced", 100)),
     RealVolume("mr-head-t1", "T1 MRI of a whole head (real)", "MRI",
                (("noise", 0, 20), ("head tissue", 40, INF)), ("head tissue",), "noise", None,
-               "niivue-images chris_t1.nii.gz (CC BY-NC 4.0)"),
+               "niivue-images chris_t1.nii.gz (CC BY-NC 4.0)", ("MR-Default", 0)),
     RealVolume("mr-head-pd-thick", "PD MRI of a head, thick slices (real)", "MRI",
                (("head tissue", 40, INF),), ("head tissue",), None, None,
-               "niivue-images chris_PD.nii.gz (CC BY-NC 4.0)"),
+               "niivue-images chris_PD.nii.gz (CC BY-NC 4.0)", ("MR-Default", 0)),
     RealVolume("mr-head-electrodes", "Head MRI with subdural electrodes (real)", "MRI",
                (("haze", 0, 50), ("head tissue", 100, INF)), ("head tissue",), "haze", None,
-               "VolumeRenderingData seg3D/MR.nii.gz (Seg3DData, MIT)"),
+               "VolumeRenderingData seg3D/MR.nii.gz (Seg3DData, MIT)", ("MR-Default", 50)),
     RealVolume("mr-brain-stroke-t1", "Brain T1 MRI after a stroke, 8-bit (real)", "MRI",
                (("cortex", 60, 140), ("CSF, cavity and background", 0, 60)), ("cortex",),
-               "CSF, cavity and background", None, "VolumeRenderingData stroke/T1.nii.gz (C-STAR, MIT)"),
+               "CSF, cavity and background", None, "VolumeRenderingData stroke/T1.nii.gz (C-STAR, MIT)",
+               ("US-Fetal", 0)),
     RealVolume("mr-brain-stroke-flair", "Brain FLAIR MRI after a stroke, 8-bit (real)", "MRI",
                (("hyperintense", 165, INF),), ("hyperintense",), None, None,
-               "VolumeRenderingData stroke/FLAIR.nii.gz (C-STAR, MIT)"),
+               "VolumeRenderingData stroke/FLAIR.nii.gz (C-STAR, MIT)", ("MR-Angio", 15)),
     RealVolume("sim-heptane", "Heptane jet flame simulation (real)", "simulation",
                (("empty", 0, 0), ("core", 100, INF), ("envelope", 1, 100)), ("core", "envelope"), "empty", None,
-               "VolumeRenderingData OpenSciVis/heptane.nii.gz"),
+               "VolumeRenderingData OpenSciVis/heptane.nii.gz", ("CT-Cardiac3", 100)),
     RealVolume("sim-fuel", "Fuel injection simulation, 64 x 33 x 32 (real)", "simulation",
                (("empty", 0, 0), ("plume", 40, INF)), ("plume",), "empty", None,
-               "VolumeRenderingData OpenSciVis/fuel.nii.gz"),
+               "VolumeRenderingData OpenSciVis/fuel.nii.gz", ("CT-AAA", -100)),
 )  # fmt: skip
 
 
@@ -975,13 +987,14 @@ PANEL: tuple[PanelVolume, ...] = (
                 ("organs",), "air", _always, "synthetic, coil shading and Rician noise"),
     *(
         PanelVolume(v.key, v.title, v.kind, real_load(v), v.shown_for, v.fog, _file(v.path),
-                    f"../shared/data/{v.key}.nii.gz: {v.source}")
+                    f"../shared/data/{v.key}.nii.gz: {v.source}", v.kept)
         for v in REAL_VOLUMES
     ),
     PanelVolume("cta-chest-clipped", "CT angiography of the chest, HU clipped at 0 in 62.5-HU steps (real, re-stored)",
                 "CT", real_load(_CTA_CHEST, hu_clipped_quantized), _CTA_CHEST.shown_for, _CTA_CHEST.fog,
                 _file(_CTA_CHEST.path),
-                f"../shared/data/cta-chest.nii.gz, re-stored as a stented aorta's CTA was: {_CTA_CHEST.source}"),
+                f"../shared/data/cta-chest.nii.gz, re-stored as a stented aorta's CTA was: {_CTA_CHEST.source}",
+                _CTA_CHEST.kept),
 )  # fmt: skip
 
 #: The HU originals of the re-stored volumes: compare.py has them as ``phantom`` and ``head-ct``; look_panel.py
