@@ -334,6 +334,14 @@ def _logic_presets(folder: Path) -> Path:
     return path
 
 
+def _slicer_and_compare():
+    """isosimtf.rendering and compare.py, or skip the test without slicer-core."""
+    rendering = pytest.importorskip("isosimtf.rendering")
+    if not rendering.slicer_core_available():
+        pytest.skip("slicer-core is not installed")
+    return rendering, _load("compare")
+
+
 def _blob(dtype, high: float) -> np.ndarray:
     k, j, i = np.mgrid[:24, :24, :24]
     radius = np.sqrt((k - 11.5) ** 2 + (j - 11.5) ** 2 + (i - 11.5) ** 2)
@@ -342,10 +350,7 @@ def _blob(dtype, high: float) -> np.ndarray:
 
 @pytest.mark.parametrize(("dtype", "high", "picked"), [(np.uint8, 250, "US-Fetal"), (np.int16, 400, "MR-Default")])
 def test_first_click_is_what_slicers_logic_recommends(tmp_path, dtype, high, picked):
-    rendering = pytest.importorskip("isosimtf.rendering")
-    if not rendering.slicer_core_available():
-        pytest.skip("slicer-core is not installed")
-    compare = _load("compare")
+    rendering, compare = _slicer_and_compare()
     values = _blob(dtype, high)
     with rendering.HeadlessSlicer(size=(64, 64), presets_file=_logic_presets(tmp_path)) as headless:
         volume_node = headless.add_volume(values)
@@ -363,10 +368,7 @@ def test_first_click_is_what_slicers_logic_recommends(tmp_path, dtype, high, pic
 
 
 def test_the_kept_preset_is_shifted_as_the_shift_slider_moves_it(tmp_path):
-    rendering = pytest.importorskip("isosimtf.rendering")
-    if not rendering.slicer_core_available():
-        pytest.skip("slicer-core is not installed")
-    compare = _load("compare")
+    rendering, compare = _slicer_and_compare()
     values = _blob(np.int16, 400)
     with rendering.HeadlessSlicer(size=(64, 64), presets_file=_logic_presets(tmp_path)) as headless:
         volume_node = headless.add_volume(values)
@@ -391,10 +393,7 @@ def test_the_kept_preset_is_shifted_as_the_shift_slider_moves_it(tmp_path):
 
 
 def test_the_best_look_of_the_gallery_joins_the_columns_when_it_beats_the_first_click(tmp_path):
-    rendering = pytest.importorskip("isosimtf.rendering")
-    if not rendering.slicer_core_available():
-        pytest.skip("slicer-core is not installed")
-    compare = _load("compare")
+    rendering, compare = _slicer_and_compare()
     values = _blob(np.int16, 400)
     shell = (values > 0) & (values < 200)  # the outer, dimmer part of the blob
     labels = np.where(shell, 1, np.where(values >= 200, 2, 0))

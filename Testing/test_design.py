@@ -297,6 +297,8 @@ def _set(path, value):
         (("solo_tissue",), True, "a tissue id is an integer"),
         (("options", "damping"), 0.1, "damping"),
         (("kind",), "pet", "kind must be one of"),
+        (("voxel_noise_sd",), -1.0, "voxel_noise_sd must be"),
+        (("voxel_noise_sd",), "3", "voxel_noise_sd must be"),
     ],
 )
 def test_an_invalid_design_text_is_refused_in_one_line(design, path, value, reason):
@@ -307,6 +309,13 @@ def test_an_invalid_design_text_is_refused_in_one_line(design, path, value, reas
 
 def test_the_unedited_design_text_is_accepted(design):
     assert TransferFunctionDesign.from_json(_edited(design, lambda document: None)).to_dict() == design.to_dict()
+
+
+def test_the_voxels_noise_is_saved_with_the_design_and_absent_from_older_texts(design):
+    assert design.voxel_noise_sd is not None and design.voxel_noise_sd > 0
+    assert TransferFunctionDesign.from_json(design.to_json()).voxel_noise_sd == design.voxel_noise_sd
+    older = TransferFunctionDesign.from_json(_edited(design, lambda document: document.pop("voxel_noise_sd")))
+    assert older.voxel_noise_sd is None and older.looks  # a design saved before: the dense rule's old width
 
 
 @pytest.mark.parametrize(

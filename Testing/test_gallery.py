@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from test_look import make_classes
 
-from IsoSimilarityTFLib import design_transfer_function
+from IsoSimilarityTFLib import design_transfer_function, quantize
+from IsoSimilarityTFLib.classes import voxel_noise_sd
 from IsoSimilarityTFLib.design import TransferFunctionDesign
 from IsoSimilarityTFLib.gallery import (
     LOOK_NAMES,
@@ -19,7 +20,7 @@ from IsoSimilarityTFLib.gallery import (
     make_look,
 )
 from IsoSimilarityTFLib.look import SHOWN_PLACE, bin_opacity_of, ramp_colors
-from IsoSimilarityTFLib.roles import RULES, class_roles, dense_classes
+from IsoSimilarityTFLib.roles import RULES, class_roles, dense_classes, dense_width
 from IsoSimilarityTFLib.visibility import Preview, visibility_histogram
 from isosimtf.phantom import head_phantom
 
@@ -100,6 +101,74 @@ def test_dense_is_measured_from_the_largest_tissues_mean_above_the_largest_class
     classes = make_classes([50_000, 3000, 3000, 300])
     means = np.array([0.0, 18.0, 22.0, 20.0 + gap])
     assert (class_roles(classes, np.array([0, 1, 1, 2]), means, 1.0)[3] == "dense") is dense
+
+
+@pytest.mark.parametrize("gap, dense", [(RULES.dense_separation - 0.01, False), (RULES.dense_separation + 0.01, True)])
+def test_dense_counts_in_its_own_width_when_given(gap, dense):
+    # The model's width is 5 bins, the dense rule's 2: a class `gap` of the latter above the main tissue.
+    classes = make_classes([5000, 3000, 300])
+    roles = class_roles(classes, np.arange(3), np.array([0.0, 20.0, 20.0 + 2.0 * gap]), 5.0, RULES, dense_sd=2.0)
+    assert (roles[2] == "dense") is dense
+
+
+def test_the_dense_width_is_the_models_on_ct_and_the_smaller_voxel_noise_on_other_data():
+    assert dense_width("ct", 20.0, 8.0) == 20.0  # bone is another material: the soft tissues' contrasts are not
+    assert dense_width("mr", 20.0, 8.0) == 8.0
+    assert dense_width("mr", 20.0, 30.0) == 20.0  # never wider than the model's
+    assert dense_width("mr", 20.0, 0.0) == 0.5  # data stored in coarse steps: a histogram resolves no less
+    assert dense_width("mr", 20.0, None) == 20.0  # a design saved before the voxels' noise was measured
+
+
+def _noisy_planes(sd, shape=(8, 256, 256), seed=0):
+    """Bins of two tissues (100 and 160) side by side with Gaussian noise of ``sd`` bins, in a background of 0."""
+    rng = np.random.default_rng(seed)
+    values = np.where(np.arange(shape[2]) < shape[2] // 2, 100.0, 160.0) + rng.normal(0.0, sd, shape)
+    values[:, :16] = 0.0  # the background: no noise in it
+    return np.clip(np.rint(values), 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("sd", [2.0, 5.0, 9.0])
+def test_the_voxels_noise_is_the_noise_not_the_spread_between_tissues(sd):
+    # Two tissues 60 bins apart side by side: their edge's pairs do not move the median. Differences of whole bins
+    # read between bins (the grouped median): within 3 % (the rounding to bins adds 1/12 bin^2 of variance).
+    foreground = np.arange(256) > 0
+    assert voxel_noise_sd(_noisy_planes(sd), foreground) == pytest.approx(sd, rel=0.03)
+
+
+def test_the_voxels_noise_leaves_the_background_out():
+    bins = _noisy_planes(5.0)
+    bins[:, :, :128] = np.random.default_rng(1).integers(1, 41, (8, 256, 128))  # a wildly noisy background, 1..40
+    everything = np.ones(256, dtype=bool)
+    outside_background = np.arange(256) > 40
+    assert voxel_noise_sd(bins, everything) > 7.0  # the background's pairs (|a - b| of 1..40 at random) counted
+    assert voxel_noise_sd(bins, outside_background) == pytest.approx(5.0, rel=0.03)
+    assert voxel_noise_sd(bins, np.zeros(256, dtype=bool)) is None
+
+
+def test_a_bright_lesion_in_a_textured_tissue_is_dense_on_mri_not_on_ct():
+    # Grey and white matter (100 and 125) with a slow texture of +-25 (the intensity model's width grows with it to 26
+    # bins, the neighbours' differences barely do: 5), noise 3, in an MRI's noisy air, and bright lesions at 165:
+    # within 4 model widths of the main material, far beyond 4 of the voxels' noise. Dense where the data are not
+    # CT-like; not when the same data are declared CT.
+    rng = np.random.default_rng(3)
+    shape = (48, 64, 64)
+    k, j, i = np.indices(shape)
+    inside = (abs(k - 24) < 20) & (abs(j - 32) < 28) & (abs(i - 32) < 28)
+    texture = 25.0 * np.sin(2 * np.pi * i / 37.0) * np.sin(2 * np.pi * j / 43.0)
+    values = np.where(inside, np.where(k < 24, 100.0, 125.0) + texture, 10.0)
+    lesion = ((k - 30) ** 2 + (j - 32) ** 2 + (i - 40) ** 2 < 25) | ((k - 14) ** 2 + (j - 20) ** 2 + (i - 24) ** 2 < 16)
+    values[lesion] = 165.0
+    values = np.clip(values + rng.normal(0.0, 3.0, shape), 0, 255).astype(np.uint8)
+    roles = {}
+    for modality in ("mr", "ct"):
+        design = design_transfer_function(values, 1.0, modality=modality)
+        context = design.look_context()
+        lesion_bins = quantize(values, design.n_bins, design.value_range).bins[lesion]
+        lesion_classes = {int(design.labels[b]) for b in np.unique(lesion_bins)}
+        roles[modality] = [context.roles[c] for c in lesion_classes]
+        assert design.voxel_noise_sd < design.hierarchy.noise_sd / 2
+    assert roles["mr"].count("dense") > len(roles["mr"]) / 2
+    assert "dense" not in roles["ct"]
 
 
 def test_a_dense_class_stays_dense_when_it_touches_the_background():

@@ -12,7 +12,7 @@ from typing import Callable, Optional, Union
 
 import numpy as np
 
-from .classes import IsovalueClass, _flag, _unit_number, build_classes, planes_read, runs
+from .classes import IsovalueClass, _flag, _unit_number, build_classes, planes_read, runs, voxel_noise_sd
 from .clustering import FALLBACK_DAMPINGS, cluster_isovalues, unconverged_advice
 from .errors import ClusteringError
 from .gallery import GalleryLook, LookContext, check_look, first_look_name, gallery, make_look
@@ -131,6 +131,8 @@ class TransferFunctionDesign:
             keeps it.
         robust_range: what the default value range of the run that made the design left out (padding, outliers;
             see :mod:`.value_range`), or None (a range was given; not serialized): :meth:`range_warning` says it.
+        voxel_noise_sd: the voxels' noise in bins (:func:`.classes.voxel_noise_sd`), or None for a design saved
+            before it was measured (the dense classes then count in the intensity model's width).
     """
 
     value_range: tuple[float, float]
@@ -152,6 +154,7 @@ class TransferFunctionDesign:
     unit_distance: float = 1.0
     look_name: Optional[str] = None
     robust_range: Optional[RobustRange] = field(default=None, repr=False, compare=False)
+    voxel_noise_sd: Optional[float] = None
     _gallery: Optional[list[GalleryLook]] = field(default=None, init=False, repr=False, compare=False)
     # The current grouping's look context (see look_context): the gallery reuses the renders its first look needed.
     _context: Optional[LookContext] = field(default=None, init=False, repr=False, compare=False)
@@ -295,6 +298,7 @@ class TransferFunctionDesign:
                 class_bins=self.class_bins,
                 labels=self.labels,
                 noise_sd=self.hierarchy.noise_sd,
+                voxel_noise_sd=self.voxel_noise_sd,
                 preview=self.preview,
                 kind=self.kind,
                 colors=self.options.get("colors", DEFAULT_OPTIONS["colors"]),
@@ -447,6 +451,7 @@ class TransferFunctionDesign:
             "clustering": dict(self.clustering),
             "spacing": list(self.spacing) if self.spacing else None,
             "unit_distance": self.unit_distance,
+            "voxel_noise_sd": self.voxel_noise_sd,
             "look": self.look_name,
             "kind": self.kind,
             "solo_class": self.solo_class,
@@ -486,6 +491,13 @@ class TransferFunctionDesign:
             unit_distance = float(data.get("unit_distance", 1.0))
             if not (np.isfinite(unit_distance) and unit_distance > 0):
                 raise ValueError(f"unit_distance must be a positive number of mm; got {unit_distance!r}")
+            voxel_noise = data.get("voxel_noise_sd")
+            if voxel_noise is not None:
+                if isinstance(voxel_noise, bool) or not isinstance(voxel_noise, (int, float)):
+                    raise ValueError(f"voxel_noise_sd must be a number of bins, at least 0; got {voxel_noise!r}")
+                voxel_noise = float(voxel_noise)
+                if not (np.isfinite(voxel_noise) and voxel_noise >= 0):
+                    raise ValueError(f"voxel_noise_sd must be a number of bins, at least 0; got {voxel_noise!r}")
             tissues = [Tissue.from_dict(t) for t in data["tissues"]]
             members = sorted(c for t in tissues for c in t.classes)
             if members != list(range(len(classes))) or [t.id for t in tissues] != list(range(len(tissues))):
@@ -516,6 +528,7 @@ class TransferFunctionDesign:
                 timings_s={k: float(v) for k, v in data.get("timings_s", {}).items()},
                 spacing=_check_spacing(data.get("spacing")),
                 unit_distance=unit_distance,
+                voxel_noise_sd=voxel_noise,
                 look_name=look_name,
                 preview=None if data.get("preview") is None else _preview_from_dict(data["preview"], n_bins),
             )
@@ -833,6 +846,8 @@ def design_transfer_function(
         classes = build_classes(
             clusters.labels, clusters.exemplars, bin_voxels, edges, background=opts["background"], bins=tap
         )
+        foreground = ~np.isin(clusters.labels, [c.id for c in classes if c.background])
+        voxel_noise = voxel_noise_sd(tap, foreground)
 
     with stage("tissues", "grouping classes into tissues and choosing their look"):
         background = next((c.id for c in classes if c.background), None)
@@ -868,6 +883,7 @@ def design_transfer_function(
             preview=preview,
             unit_distance=preview.unit_distance,
             robust_range=robust,
+            voxel_noise_sd=voxel_noise,
         )
         design.regroup(opts["tissues"])
     design.timings_s = timings

@@ -39,7 +39,7 @@ import numpy as np
 from .classes import PALETTE, IsovalueClass
 from .look import BACKGROUND_GREY, bin_opacity_of, default_look
 from .options import LOOK_NAMES
-from .roles import RULES, LookRules, class_roles, tissue_mean_bins
+from .roles import RULES, LookRules, class_roles, dense_width, tissue_mean_bins
 from .thumbnails import ray_visibility  # check_look's independent ray caster: an oracle, not the fast path
 from .visibility import Preview, visibility_histogram
 
@@ -68,6 +68,8 @@ class LookContext:
         preview: the low-resolution volume (None: no look needing a measure is offered, no share is measured).
         kind: ``"ct"``, ``"mr"`` or ``"8bit"``. colors: the ``colors`` option. max_classes: the option.
         roles: one of :data:`.roles.ROLES` per class. rules: the thresholds.
+        voxel_noise_sd: the voxels' noise in bins (:func:`.classes.voxel_noise_sd`), or None (not measured: a design
+            saved before it was): the dense classes' width (:func:`.roles.dense_width`).
     """
 
     classes: Sequence[IsovalueClass]
@@ -82,6 +84,7 @@ class LookContext:
     max_classes: int = 15
     roles: list[str] = field(default_factory=list)
     rules: LookRules = RULES
+    voxel_noise_sd: Optional[float] = None
     # The default looks made so far, by kind ("ct" or not): several looks start from the same one.
     _defaults: dict = field(default_factory=dict, repr=False, compare=False)
     # The light per class of every transfer function rendered so far, by its bin opacities: a look's last step and
@@ -93,8 +96,9 @@ class LookContext:
     @classmethod
     def build(cls, *, rules: LookRules = RULES, **inputs) -> "LookContext":
         """The context with the roles decided (:func:`.roles.class_roles`)."""
+        dense_sd = dense_width(inputs["kind"], inputs["noise_sd"], inputs.get("voxel_noise_sd"))
         roles = class_roles(
-            inputs["classes"], inputs["tissue_of_class"], inputs["class_bins"], inputs["noise_sd"], rules
+            inputs["classes"], inputs["tissue_of_class"], inputs["class_bins"], inputs["noise_sd"], rules, dense_sd
         )
         return cls(**inputs, roles=roles, rules=rules)
 
