@@ -20,7 +20,7 @@ from IsoSimilarityTFLib.gallery import (
     make_look,
 )
 from IsoSimilarityTFLib.look import SHOWN_PLACE, bin_opacity_of, ramp_colors
-from IsoSimilarityTFLib.roles import RULES, class_roles, dense_classes, dense_width
+from IsoSimilarityTFLib.roles import RULES, class_roles, dense_classes, noise_width
 from IsoSimilarityTFLib.visibility import Preview, visibility_histogram
 from isosimtf.phantom import head_phantom
 
@@ -103,20 +103,34 @@ def test_dense_is_measured_from_the_largest_tissues_mean_above_the_largest_class
     assert (class_roles(classes, np.array([0, 1, 1, 2]), means, 1.0)[3] == "dense") is dense
 
 
-@pytest.mark.parametrize("gap, dense", [(RULES.dense_separation - 0.01, False), (RULES.dense_separation + 0.01, True)])
-def test_dense_counts_in_its_own_width_when_given(gap, dense):
-    # The model's width is 5 bins, the dense rule's 2: a class `gap` of the latter above the main tissue.
-    classes = make_classes([5000, 3000, 300])
-    roles = class_roles(classes, np.arange(3), np.array([0.0, 20.0, 20.0 + 2.0 * gap]), 5.0, RULES, dense_sd=2.0)
-    assert (roles[2] == "dense") is dense
+@pytest.mark.parametrize("gap, role", [(RULES.fog_separation - 0.01, "fog"), (RULES.fog_separation + 0.01, "bulk")])
+@pytest.mark.parametrize("kind", ["mr", "ct"])
+def test_the_roles_count_in_the_voxels_noise_on_data_that_are_not_ct_like(gap, role, kind):
+    # The model's width is 5 bins, the voxels' noise 2: a low tissue `gap` voxel-noise widths above the background.
+    # On MRI it is fog only within 4 of those; on CT, within 4 of the model's (so fog on both sides here).
+    classes = make_classes([50_000, 3000, 6000])
+    context = LookContext.build(
+        classes=classes, tissue_of_class=np.arange(3), class_values=np.array([0.0, 2.0 * gap, 60.0]),
+        class_bins=np.array([0.0, 2.0 * gap, 60.0]), labels=np.repeat(np.arange(3), [10, 30, 40]), noise_sd=5.0,
+        voxel_noise_sd=2.0, preview=None, kind=kind,
+    )  # fmt: skip
+    assert context.roles[1] == (role if kind == "mr" else "fog")
+    # The first click decides fog in the same width, and so does the CT's outer surface (a look of another kind).
+    bins = np.full((8, 8, 8), 5, dtype=np.uint16)  # the air (class 0), the low tissue (1) around a core (2)
+    bins[1:7, 1:7, 1:7] = 25
+    bins[3:5, 3:5, 3:5] = 60
+    preview = Preview(bins, (1.0, 1.0, 1.0), 80)
+    context = dataclasses.replace(context, preview=preview)
+    outer = make_look("outer-surface", context)
+    assert outer is not None and outer.visible[1] == (role == "bulk" and kind == "mr")
 
 
-def test_the_dense_width_is_the_models_on_ct_and_the_smaller_voxel_noise_on_other_data():
-    assert dense_width("ct", 20.0, 8.0) == 20.0  # bone is another material: the soft tissues' contrasts are not
-    assert dense_width("mr", 20.0, 8.0) == 8.0
-    assert dense_width("mr", 20.0, 30.0) == 20.0  # never wider than the model's
-    assert dense_width("mr", 20.0, 0.0) == 0.5  # data stored in coarse steps: a histogram resolves no less
-    assert dense_width("mr", 20.0, None) == 20.0  # a design saved before the voxels' noise was measured
+def test_the_noise_width_is_the_models_on_ct_and_the_smaller_voxel_noise_on_other_data():
+    assert noise_width("ct", 20.0, 8.0) == 20.0  # bone is another material: the soft tissues' contrasts are not
+    assert noise_width("mr", 20.0, 8.0) == 8.0
+    assert noise_width("mr", 20.0, 30.0) == 20.0  # never wider than the model's
+    assert noise_width("mr", 20.0, 0.0) == 0.5  # data stored in coarse steps: a histogram resolves no less
+    assert noise_width("mr", 20.0, None) == 20.0  # a design saved before the voxels' noise was measured
 
 
 def _noisy_planes(sd, shape=(8, 256, 256), seed=0):

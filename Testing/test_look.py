@@ -151,6 +151,18 @@ def test_a_tissue_is_fog_where_its_largest_class_lies_not_where_its_mean_does(ga
     assert look.visible == [False, shown, shown, shown, True]
 
 
+@pytest.mark.parametrize("gap, shown", [(RULES.fog_separation + 0.1, True), (RULES.fog_separation - 0.1, False)])
+def test_the_first_click_decides_fog_in_the_width_it_is_given(gap, shown):
+    # The model's width is 3 bins, the fog's 1 (an MRI's voxels' noise): the low tissue's largest class `gap` fog
+    # widths above the background (within 4 model widths either way) is shown beyond 4 of them; without it, never.
+    classes = make_classes([10_000, 900, 1000, 500])
+    means = np.array([0.0, 1.0, gap, 20.0])
+    tissue_of = np.array([0, 1, 1, 2])
+    look = default_look(classes, tissue_of, means, "mr", class_bins=means, noise_sd=3.0, fog_sd=1.0)
+    assert look.visible[2] == shown
+    assert not default_look(classes, tissue_of, means, "mr", class_bins=means, noise_sd=3.0).visible[2]
+
+
 @pytest.mark.parametrize(
     "kind, offset, rim, filled",
     [("mr", -0.01, False, True), ("mr", 0.01, False, False), ("ct", -0.01, False, False), ("mr", -0.01, True, False)],

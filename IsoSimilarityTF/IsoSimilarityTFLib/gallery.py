@@ -39,7 +39,7 @@ import numpy as np
 from .classes import PALETTE, IsovalueClass
 from .look import BACKGROUND_GREY, bin_opacity_of, default_look
 from .options import LOOK_NAMES
-from .roles import RULES, LookRules, class_roles, dense_width, tissue_mean_bins
+from .roles import RULES, LookRules, class_roles, noise_width, tissue_mean_bins
 from .thumbnails import ray_visibility  # check_look's independent ray caster: an oracle, not the fast path
 from .visibility import Preview, visibility_histogram
 
@@ -69,7 +69,8 @@ class LookContext:
         kind: ``"ct"``, ``"mr"`` or ``"8bit"``. colors: the ``colors`` option. max_classes: the option.
         roles: one of :data:`.roles.ROLES` per class. rules: the thresholds.
         voxel_noise_sd: the voxels' noise in bins (:func:`.classes.voxel_noise_sd`), or None (not measured: a design
-            saved before it was): the dense classes' width (:func:`.roles.dense_width`).
+            saved before it was): with ``noise_sd`` and ``kind``, the width the roles count in
+            (:func:`.roles.noise_width`).
     """
 
     classes: Sequence[IsovalueClass]
@@ -96,10 +97,8 @@ class LookContext:
     @classmethod
     def build(cls, *, rules: LookRules = RULES, **inputs) -> "LookContext":
         """The context with the roles decided (:func:`.roles.class_roles`)."""
-        dense_sd = dense_width(inputs["kind"], inputs["noise_sd"], inputs.get("voxel_noise_sd"))
-        roles = class_roles(
-            inputs["classes"], inputs["tissue_of_class"], inputs["class_bins"], inputs["noise_sd"], rules, dense_sd
-        )
+        width = noise_width(inputs["kind"], inputs["noise_sd"], inputs.get("voxel_noise_sd"))
+        roles = class_roles(inputs["classes"], inputs["tissue_of_class"], inputs["class_bins"], width, rules)
         return cls(**inputs, roles=roles, rules=rules)
 
     def of_role(self, *roles: str) -> np.ndarray:
@@ -279,6 +278,7 @@ def _default(context: LookContext, kind: str) -> Made:
             labels=context.labels,
             class_bins=context.class_bins,
             noise_sd=context.noise_sd,
+            fog_sd=noise_width(context.kind, context.noise_sd, context.voxel_noise_sd),
             preview=context.preview,
             colors=context.colors,
             max_classes=context.max_classes,

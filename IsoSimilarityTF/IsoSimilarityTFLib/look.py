@@ -6,15 +6,15 @@ until the picture shows what the data holds. Everything is computed from the iso
 units, so a CT in Hounsfield units, the same CT as 16-bit stored values or as an 8-bit export, and a float copy get
 the same tissues, the same opacities and the same picture.
 
-1. **Which tissues are shown.** Not the background, not a tissue most of whose voxels touch it (noise in the air,
-   the partial-volume rim) or whose largest class lies within :attr:`.LookRules.fog_separation` noise widths above
-   the background's (fog; its mean would follow its partial-volume tail down to the background); of the others,
-   whole tissues, the largest first, while they hold at most ``max_classes`` classes; the densest real tissue
-   always; and on data that are not CT-like, where a shown tissue fills the object (more than
+1. **Which tissues are shown.** Not the background, not a tissue most of whose voxels touch it (noise in the air, the
+   partial-volume rim) or whose largest class lies within :attr:`.LookRules.fog_separation` noise widths
+   (:func:`.roles.noise_width`) above the background's (fog; its mean would follow its partial-volume tail down to the
+   background); of the others, whole tissues, the largest first, while they hold at most ``max_classes`` classes; the
+   densest real tissue always; and on data that are not CT-like, where a shown tissue fills the object (more than
    :attr:`.LookRules.fill_share` of the foreground's voxels; met first, it is the object's surface, see
-   :meth:`_VisibilityStep.outer_surface`), every tissue lying between two shown ones, as
-   every preset's ramp shows all values above its threshold (hidden, it would punch holes where the surface passes
-   through its values: a head MRI's skin, between its grey matter and its fat).
+   :meth:`_VisibilityStep.outer_surface`), every tissue lying between two shown ones, as every preset's ramp shows all
+   values above its threshold (hidden, it would punch holes where the surface passes through its values: a head MRI's
+   skin, between its grey matter and its fat).
 2. **A monotone start**, as every Slicer preset: opacity per mm rises with intensity, from
    :attr:`.LookRules.opacity_low` for the lowest shown tissue to :attr:`.LookRules.opacity_high` for the densest,
    linear in their rank.
@@ -212,6 +212,7 @@ def default_look(
     labels: Optional[np.ndarray] = None,
     class_bins: Optional[np.ndarray] = None,
     noise_sd: float = 1.0,
+    fog_sd: Optional[float] = None,
     preview: Optional[Preview] = None,
     colors: str = "ramp",
     max_classes: int = 15,
@@ -227,6 +228,8 @@ def default_look(
         labels: ``(n_bins,)`` class id per bin; needed with ``preview``.
         class_bins: ``(n_classes,)`` mean bin of each class (default: ``class_values``, when they are bins).
         noise_sd: the intensity model's noise width, in bins.
+        fog_sd: the noise width fog is decided in, in bins: the data's (:func:`.roles.noise_width`; ``noise_sd`` if
+            None). A look of another kind than the data's (the outer surface of a CT) keeps the data's.
         preview: the low-resolution volume the visibility step renders (None: the monotone start only).
         colors: ``"ramp"`` (one ramp colour per tissue) or ``"distinct"`` (one palette colour per tissue, by size).
         max_classes: tissues are shown whole, the largest first, while they hold at most this many classes (the
@@ -260,12 +263,13 @@ def default_look(
     # background), whole tissues, largest first, up to `max_classes` classes, the densest real one always, and, in
     # an object a shown tissue fills (on data that are not CT-like), every one between two shown ones.
     background_bin = float(class_bins[is_background][0]) if is_background.any() else -np.inf
+    fog_width = noise_sd if fog_sd is None else fog_sd
     peak = np.array([largest_class(tissue_of_class, voxels, t) for t in range(n_tissues)], dtype=np.intp)
     inner = [
         t
         for t in foreground
         if tissue_contact[t] <= rules.rim_contact
-        and class_bins[peak[t]] - background_bin >= rules.fog_separation * noise_sd
+        and class_bins[peak[t]] - background_bin >= rules.fog_separation * fog_width
     ] or foreground
     classes_in = np.bincount(tissue_of_class, minlength=n_tissues)
     shown: set[int] = set()

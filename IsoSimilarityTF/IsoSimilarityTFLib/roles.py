@@ -6,16 +6,16 @@ them. Every threshold is one field of :class:`LookRules`, which takes one decisi
 Roles, in the order they are decided (the first that applies):
 
 - ``"background"``: the background class (the thesis' rule: the largest class; see :mod:`.classes`).
-- ``"fog"``: noise in the background: the class's mean bin lies within :attr:`LookRules.fog_separation` noise
-  widths of the background's, either side (a micro-CT's noisy air, the haze of an MRI), and so does the largest
-  class of its tissue (the tissue *is* at the background's intensity: noisy air, haze), or most of its voxels touch
-  the background (:attr:`LookRules.rim_contact`: noise scattered in the air). A low class of a tissue whose largest
-  class stands apart from the background, which does not touch it, is that tissue's darker part or partial volume
-  (the outer cortex of a skull-stripped brain), not noise. No look shows fog.
+- ``"fog"``: noise in the background: the class's mean bin lies within :attr:`LookRules.fog_separation` noise widths
+  (:func:`noise_width`) of the background's, either side (a micro-CT's noisy air, the haze of an MRI), and so does the
+  largest class of its tissue (the tissue *is* at the background's intensity: noisy air, haze), or most of its voxels
+  touch the background (:attr:`LookRules.rim_contact`: noise scattered in the air). A low class of a tissue whose
+  largest class stands apart from the background, which does not touch it, is that tissue's darker part or partial
+  volume (the outer cortex of a skull-stripped brain), not noise. No look shows fog.
 - ``"dense"``: a class whose mean lies :attr:`LookRules.dense_separation` noise widths above the *main material*,
   in a real tissue: bone or contrast in soft tissue, the parts inside a housing, the core of a vessel, a bright
   lesion (widths of the intensity model on CT-like data, of the voxels' noise where smaller on other data: see
-  :func:`dense_width`). The main material is placed by the larger of two estimates: the mean of the largest
+  :func:`noise_width`). The main material is placed by the larger of two estimates: the mean of the largest
   tissue, and the mean of the largest class (affinity propagation gives the peak of a material's histogram a class
   of its own; a tissue's mean follows its partial-volume tail down: in an export whose air was set to 0, the lowest
   tissue is mostly the blur of the skull, and its mean lies far below the brain). Decided per class: where the
@@ -45,13 +45,13 @@ class LookRules:
     Attributes:
         real_share: a tissue holding at least this share of the non-background voxels is a real structure, not a
             few stray voxels (which never decide what is dense, nor become the most opaque thing in view).
-        fog_separation: a class whose mean lies within this many noise widths (of the intensity model, in bins)
-            of the background's mean is at the background's intensity, as noise in it would be: two Gaussians 4 sd
+        fog_separation: a class whose mean lies within this many noise widths (:func:`noise_width`, in bins) of
+            the background's mean is at the background's intensity, as noise in it would be: two Gaussians 4 sd
             apart overlap by under 2.5 % (fog when its tissue's largest class is there too, or it touches the
             background: see the module notes).
         dense_separation: a real tissue this many noise widths above another is a different, denser material (bone
             over soft tissue), not a brighter shade of the same one (white over grey matter): it decides the dense
-            classes (counted in :func:`dense_width`), a CT's dense tail and which tissues a feature is seen through.
+            classes (counted in :func:`noise_width`), a CT's dense tail and which tissues a feature is seen through.
         ramp_start: a feature's partial volume starts this many noise widths above the mean of the tissue below it
             (where that tissue's noise ends: its one-sided 2.5 % tail lies beyond 2 sd, and 4 sd leaves 3e-5).
         tail_share: a CT's dense tail holds at most this share of the largest tissue's voxels (bone is 5-25 % of a
@@ -113,14 +113,15 @@ class LookRules:
 RULES = LookRules()
 
 
-def dense_width(kind: str, noise_sd: float, voxel_noise_sd: Optional[float]) -> float:
-    """The width, in bins, that :attr:`LookRules.dense_separation` counts in: the intensity model's noise width on
-    CT-like data (``kind`` ``"ct"``), there a dense part is another material, bone or contrast or metal, whose
-    distance from the soft tissue dwarfs the soft tissues' own contrasts (enhanced organs are not dense parts); on
-    other data the voxels' noise (:func:`.classes.voxel_noise_sd`) where it is smaller, since there a brighter
-    structure is a few noise widths above the tissue around it (a FLAIR lesion, an enhancing vessel) and the model's
-    width also holds the spread of its wide tissues (grey and white matter in one: the lesion would lie within it).
-    At least half a bin (a histogram resolves no less)."""
+def noise_width(kind: str, noise_sd: float, voxel_noise_sd: Optional[float]) -> float:
+    """The noise width, in bins, that the fog and dense rules count in (:attr:`LookRules.fog_separation`,
+    :attr:`LookRules.dense_separation`): the intensity model's on CT-like data (``kind`` ``"ct"``), where a dense part
+    is another material, bone or contrast or metal, whose distance from the soft tissue dwarfs the soft tissues' own
+    contrasts (enhanced organs are not dense parts); on other data the voxels' noise
+    (:func:`.classes.voxel_noise_sd`) where it is smaller, since there the model's width also holds the spread of its
+    wide tissues (grey and white matter in one): a brighter structure a few noise widths above the tissue around it
+    (a FLAIR lesion, an enhancing vessel) would lie within it, and a dim tissue (the organs of an abdominal MRI) at
+    its background's "noise". At least half a bin (a histogram resolves no less)."""
     if kind == "ct" or voxel_noise_sd is None:
         return noise_sd
     return min(noise_sd, max(voxel_noise_sd, 0.5))
@@ -132,7 +133,6 @@ def class_roles(
     class_bins: np.ndarray,
     noise_sd: float,
     rules: LookRules = RULES,
-    dense_sd: Optional[float] = None,
 ) -> list[str]:
     """The role of every class (see the module notes).
 
@@ -140,9 +140,8 @@ def class_roles(
         classes: the classes, in id order (``background``, ``voxels``, ``background_contact`` are read).
         tissue_of_class: ``(n_classes,)`` tissue id per class (the background's tissue holds it alone).
         class_bins: ``(n_classes,)`` voxel-weighted mean bin of each class.
-        noise_sd: the intensity model's noise width, in bins.
+        noise_sd: the noise width the rules count in, in bins (:func:`noise_width`).
         rules: the thresholds.
-        dense_sd: the width the dense rule counts in (:func:`dense_width`), in bins; ``noise_sd`` if None.
 
     Returns:
         One of :data:`ROLES` per class.
@@ -151,7 +150,7 @@ def class_roles(
     class_bins = np.asarray(class_bins, dtype=np.float64)
     background = next((c.id for c in classes if c.background), None)
     background_bin = class_bins[background] if background is not None else -np.inf
-    dense = set(dense_classes(classes, tissue_of_class, class_bins, noise_sd if dense_sd is None else dense_sd, rules))
+    dense = set(dense_classes(classes, tissue_of_class, class_bins, noise_sd, rules))
     voxels = np.array([c.voxels for c in classes], dtype=np.float64)
     near = np.abs(class_bins - background_bin) < rules.fog_separation * noise_sd
     roles = []
