@@ -393,6 +393,25 @@ def test_a_skin_is_ramped_against_a_background_only(background_bin, skins):
     assert class_opacity[7] == pytest.approx(0.7 * RULES.opacity_high if skins else RULES.opacity_high)
 
 
+@pytest.mark.parametrize("fog_sd, ramped", [(1.2475, True), (1.2525, False)])
+def test_a_skin_starts_where_the_backgrounds_noise_ends(fog_sd, ramped):
+    # The background at bin 0: a skin bin 5 is half shell, shown when it lies at least ramp_start fog widths above
+    # the background (4 x 1.2475 = 4.99), the air's noise when it does not (5.01).
+    bins = shell_volume()
+    tissue_of = np.select([np.arange(40) < 5, np.arange(40) < 20], [0, 1], 2)
+    step = _VisibilityStep(
+        Preview(bins, (1.0, 1.0, 1.0), 40), np.arange(40), tissue_of, [1, 2], np.array([0.0, 10.0, 30.0]),
+        np.array([0, 10, 30]), np.arange(40.0), 0.0, noise_sd=1.0, fog_sd=fog_sd,
+    )  # fmt: skip
+    assert RULES.ramp_start == 4.0 and tissue_of[5] == 1
+    opacity = step.outer_surface(
+        np.array([0.0, RULES.opacity_low, RULES.opacity_high]), [1, 2], np.array([0, 0.9, 0.1])
+    )
+    class_opacity = step.class_opacity(opacity)
+    assert class_opacity[5] == pytest.approx(0.5 * RULES.opacity_high if ramped else 0.0)
+    assert class_opacity[6] == pytest.approx(0.6 * RULES.opacity_high)
+
+
 def test_tissue_colours_follow_intensity_and_are_shared_by_their_classes():
     classes = make_classes([1000, 300, 300, 200, 200, 100])
     tissue_of = np.array([0, 1, 1, 2, 2, 3])

@@ -307,6 +307,7 @@ def default_look(
             background_bin,
             noise_sd,
             rules,
+            fog_width,
         )
         real_shown = [t for t in shown_sorted if share[t] >= rules.real_share]
         if kind == "ct":
@@ -439,6 +440,8 @@ class _VisibilityStep:
         background_bin: mean bin of the background (-inf without one).
         noise_sd: noise width in bins.
         rules: the thresholds.
+        fog_sd: the width fog is decided in, in bins (``noise_sd`` if None): a skin's partial volume starts
+            :attr:`.LookRules.ramp_start` of them above the background.
     """
 
     def __init__(
@@ -453,6 +456,7 @@ class _VisibilityStep:
         background_bin: float,
         noise_sd: float,
         rules: LookRules = RULES,
+        fog_sd: Optional[float] = None,
     ) -> None:
         self.preview = preview
         self.labels = np.asarray(labels)
@@ -465,6 +469,7 @@ class _VisibilityStep:
         self.class_bins = np.asarray(class_bins, dtype=np.float64)
         self.background_bin = float(background_bin)
         self.noise_sd = float(noise_sd)
+        self.fog_sd = self.noise_sd if fog_sd is None else float(fog_sd)
         self.rules = rules
         self.rays = preview.rays_crossing(self.tissue_of_bin, self.n_tissues)
         # Partial volume of a feature: (first bin, lower tissue, feature) where its ramp starts (see show_features).
@@ -476,7 +481,8 @@ class _VisibilityStep:
     def class_opacity(self, opacity: np.ndarray) -> np.ndarray:
         """``(n_classes,)`` opacity per mm of each class: its tissue's (0 where not shown); in a feature's partial
         volume, the mean over the class's bins of a ramp up to the feature's opacity; in a skin's partial volume
-        with the background, the share of the tissue a bin holds times its opacity."""
+        with the background, the share of the tissue a bin holds times its opacity, from where the background's
+        noise ends."""
         per_bin = np.where(self.shown, opacity, 0.0)[self.tissue_of_bin]
         for start, lower, feature in self.ramps:
             end = int(np.flatnonzero(self.tissue_of_bin == feature)[0])
@@ -485,11 +491,15 @@ class _VisibilityStep:
             share = _share_of_upper(inside, self.tissue_bin[lower], self.tissue_bin[feature])
             ramp = opacity[lower] + (opacity[feature] - opacity[lower]) * share
             per_bin[inside] = np.maximum(per_bin[inside], ramp)
+        # A skin's partial volume starts where the background's noise ends, as a feature's starts above the tissue
+        # below it: nearer the background, a voxel is the air's noise (the haze the presets' Shift cuts away).
+        skin_start = self.background_bin + self.rules.ramp_start * self.fog_sd
         for tissue in self.skins:
             # Every shown bin below the skin's largest class: its own partial volume with the background, and a
             # stray tissue there that follows its opacity (_follow_real).
             inside = np.flatnonzero(self.shown[self.tissue_of_bin] & (self.labels < self.peak[tissue]))
-            per_bin[inside] *= _share_of_upper(inside, self.background_bin, self.class_bins[self.peak[tissue]])
+            share = _share_of_upper(inside, self.background_bin, self.class_bins[self.peak[tissue]])
+            per_bin[inside] *= np.where(inside >= skin_start, share, 0.0)
         return np.bincount(self.labels, weights=per_bin, minlength=self.bins_of_class.size) / np.maximum(
             self.bins_of_class, 1
         )
@@ -576,8 +586,9 @@ class _VisibilityStep:
         made a surface where it lies, as MR-Default shows a head's skin and a brain's cortex: seen
         (:meth:`make_seen`); where it fills the object (``share`` ``(n_tissues,)`` of the foreground's voxels above
         :attr:`.LookRules.fill_share`), at least at the ramp's top, with the shown bins below its largest class (its
-        partial volume with the background) ramped in as the share of the tissue a voxel holds: an opaque tissue
-        would draw its blurred skin, not the skin. Called once per step."""
+        partial volume with the background) ramped in as the share of the tissue a voxel holds, from
+        :attr:`.LookRules.ramp_start` fog widths above the background: an opaque tissue would draw its blurred
+        skin, not the skin. Called once per step."""
         if not real:
             return opacity
         outer = real[0]

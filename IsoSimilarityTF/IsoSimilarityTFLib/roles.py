@@ -53,7 +53,8 @@ class LookRules:
             over soft tissue), not a brighter shade of the same one (white over grey matter): it decides the dense
             classes (counted in :func:`noise_width`), a CT's dense tail and which tissues a feature is seen through.
         ramp_start: a feature's partial volume starts this many noise widths above the mean of the tissue below it
-            (where that tissue's noise ends: its one-sided 2.5 % tail lies beyond 2 sd, and 4 sd leaves 3e-5).
+            (where that tissue's noise ends: its one-sided 2.5 % tail lies beyond 2 sd, and 4 sd leaves 3e-5), and
+            a skin's this many fog widths above the background.
         tail_share: a CT's dense tail holds at most this share of the largest tissue's voxels (bone is 5-25 % of a
             CT's soft tissue; the tissues above a T1's or a skull-stripped brain's largest one hold 50-100 % of it).
         white_share: the ramp's white end is kept for a densest tissue holding at most this share of the largest
