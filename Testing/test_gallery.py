@@ -149,6 +149,14 @@ def test_the_voxels_noise_is_the_noise_not_the_spread_between_tissues(sd):
     assert voxel_noise_sd(_noisy_planes(sd), foreground) == pytest.approx(sd, rel=0.03)
 
 
+def test_the_voxels_noise_is_measured_inside_the_volume_not_on_its_edge_planes():
+    # Planes of 512 x 512 (one is the whole sample): the first plane is padding, with a few stray voxels.
+    bins = _noisy_planes(5.0, shape=(64, 512, 512))
+    bins[0] = 0
+    bins[0, :10, :10] = np.random.default_rng(2).integers(1, 255, (10, 10))
+    assert voxel_noise_sd(bins, np.arange(256) > 0) == pytest.approx(5.0, rel=0.03)
+
+
 def test_the_voxels_noise_leaves_the_background_out():
     bins = _noisy_planes(5.0)
     bins[:, :, :128] = np.random.default_rng(1).integers(1, 41, (8, 256, 128))  # a wildly noisy background, 1..40

@@ -474,7 +474,7 @@ def run_case(case: PanelVolume, presets: PresetsSource, size: int, gpu: bool, ba
         "ratios": comparisons,
         "tissues": tissue_stats,
         "shown_for": list(case.shown_for),
-        "kept": list(case.kept) if case.kept else None,
+        "kept": list(case.kept) if any(name == KEPT for name, _ in columns) else None,  # Slicer has that preset
         "fog": case.fog,
         "kind_detected": design.kind,
         "gpu_lookup_table": gpu_check,
@@ -551,7 +551,8 @@ def markdown(document: dict) -> str:
         "Slicer's first click = `CreateDefaultVolumeRenderingNodes` (window/level ramp, then "
         "`SetRecommendedVolumeRenderingProperties`: US-Fetal for 8-bit data, MR-Default for a range of 50-1500, "
         "CT-Chest-Contrast-Enhanced for 1500-10000). Presets are applied as Slicer's preset menu does (`CopyContent`, "
-        "shift 0): Slicer does not move a preset to the volume's range.",
+        "shift 0): Slicer does not move a preset to the volume's range. The kept preset of a real volume is shifted "
+        "as its reading says (the module's Shift slider).",
         "",
         "## Summary: ours / best-suited preset",
         "",
@@ -692,7 +693,8 @@ def kept_summary(volumes: dict) -> list[str]:
         "",
         "The kept preset and shift are the reading of `../shared/data/README.md` (a demanding user's choice among the "
         "presets of the volume's kind, shifted), rendered here beside ours. A view keeps up when ours shows each "
-        f"structure scanned for with at least the kept picture's share (within {SHARE_TOLERANCE:.0%}), at least "
+        f"structure scanned for with at least the kept picture's share (within {100 * SHARE_TOLERANCE:g} point), at "
+        "least "
         f"{MIN_BRIGHTNESS_RATIO}x its brightness and at most {MAX_NOISE_RATIO}x its colour noise; a volume, when both "
         "views do. Best look: the look of our gallery showing most of what was scanned for, where it is not the "
         "first click, judged the same way.",

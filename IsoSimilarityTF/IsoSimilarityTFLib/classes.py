@@ -195,8 +195,9 @@ def contact_planes(shape: tuple[int, int, int]) -> range:
 
 def voxel_noise_sd(bins, foreground: np.ndarray) -> Optional[float]:
     """The noise of the voxels, in bins: ``1.4826 * median |a - b| / sqrt(2)`` over the pairs of neighbouring voxels
-    ``a, b`` (along both axes of evenly spaced :func:`contact_planes`, about ``_NOISE_SAMPLE_VOXELS`` voxels) that
-    are both outside the background.
+    ``a, b`` (along both axes of :func:`contact_planes` spread over the volume, not at its edges, about
+    ``_NOISE_SAMPLE_VOXELS`` voxels: a central band of rows of a plane larger than that) that are both outside the
+    background.
 
     Neighbours inside one tissue differ by noise alone, and the pairs across an edge are too few to move a median
     (Donoho & Johnstone's MAD: for independent Gaussian noise of width ``s``, ``a - b`` has width ``s * sqrt(2)``
@@ -210,17 +211,22 @@ def voxel_noise_sd(bins, foreground: np.ndarray) -> Optional[float]:
         foreground: ``(n_bins,)`` whether a bin lies outside the background.
 
     Returns:
-        The width in bins (0 where most neighbours are equal: data stored in steps coarser than its noise), or None
-        without a pair of foreground neighbours.
+        The width in bins (at most about half a bin where most neighbours are equal: data stored in steps coarser
+        than its noise), or None without a pair of foreground neighbours.
     """
     foreground = np.asarray(foreground, dtype=bool)
     counts = np.zeros(foreground.size, dtype=np.int64)  # pairs per absolute difference, in bins
     planes = contact_planes(bins.shape)
-    plane_voxels = int(bins.shape[1]) * int(bins.shape[2])
-    every = max(1, len(planes) * plane_voxels // _NOISE_SAMPLE_VOXELS)
+    n1, n2 = int(bins.shape[1]), int(bins.shape[2])
+    # Planes at the middles of equal runs of the measured ones (the first and last planes are often air or padding),
+    # and of a plane larger than the sample, the rows of its middle.
+    n_planes = min(len(planes), max(1, round(_NOISE_SAMPLE_VOXELS / (n1 * n2))))
+    chosen = [planes[int((k + 0.5) * len(planes) / n_planes)] for k in range(n_planes)]
+    n_rows = min(n1, max(2, _NOISE_SAMPLE_VOXELS // max(n2, 1)))
+    rows = slice((n1 - n_rows) // 2, (n1 - n_rows) // 2 + n_rows)
     signed = np.int16 if foreground.size <= np.iinfo(np.int16).max else np.int32
-    for plane in planes[::every]:
-        values = np.asarray(bins[plane]).astype(signed)
+    for plane in chosen:
+        values = np.asarray(bins[plane])[rows].astype(signed)
         inside = foreground[values]
         for ahead, behind in (((slice(1, None),), (slice(None, -1),)), ((..., slice(1, None)), (..., slice(None, -1)))):
             both = inside[ahead] & inside[behind]

@@ -122,7 +122,7 @@ def noise_width(kind: str, noise_sd: float, voxel_noise_sd: Optional[float]) -> 
     (:func:`.classes.voxel_noise_sd`) where it is smaller, since there the model's width also holds the spread of its
     wide tissues (grey and white matter in one): a brighter structure a few noise widths above the tissue around it
     (a FLAIR lesion, an enhancing vessel) would lie within it, and a dim tissue (the organs of an abdominal MRI) at
-    its background's "noise". At least half a bin (a histogram resolves no less)."""
+    its background's "noise". The voxels' noise counts as at least half a bin (a histogram resolves no less)."""
     if kind == "ct" or voxel_noise_sd is None:
         return noise_sd
     return min(noise_sd, max(voxel_noise_sd, 0.5))
