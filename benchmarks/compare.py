@@ -693,11 +693,10 @@ def kept_summary(volumes: dict) -> list[str]:
         "",
         "The kept preset and shift are the reading of `../shared/data/README.md` (a demanding user's choice among the "
         "presets of the volume's kind, shifted), rendered here beside ours. A view keeps up when ours shows each "
-        f"structure scanned for with at least the kept picture's share (within {100 * SHARE_TOLERANCE:g} point), at "
-        "least "
-        f"{MIN_BRIGHTNESS_RATIO}x its brightness and at most {MAX_NOISE_RATIO}x its colour noise; a volume, when both "
-        "views do. Best look: the look of our gallery showing most of what was scanned for, where it is not the "
-        "first click, judged the same way.",
+        f"structure scanned for with at least the kept picture's share (within {100 * SHARE_TOLERANCE:g} point), "
+        f"at least {MIN_BRIGHTNESS_RATIO}x its brightness and at most {MAX_NOISE_RATIO}x its colour noise; a volume, "
+        "when both views do. Best look: the look of our gallery showing most of what was scanned for, where it is "
+        "not the first click, judged the same way.",
         "",
         "| volume | view | kept preset | scanned for | kept | first click | B ratio | N ratio | keeps up | "
         "best look | its share | B ratio | N ratio | keeps up |",

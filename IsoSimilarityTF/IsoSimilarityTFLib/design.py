@@ -492,12 +492,12 @@ class TransferFunctionDesign:
             if not (np.isfinite(unit_distance) and unit_distance > 0):
                 raise ValueError(f"unit_distance must be a positive number of mm; got {unit_distance!r}")
             voxel_noise = data.get("voxel_noise_sd")
-            if voxel_noise is not None:
-                if isinstance(voxel_noise, bool) or not isinstance(voxel_noise, (int, float)):
-                    raise ValueError(f"voxel_noise_sd must be a number of bins, at least 0; got {voxel_noise!r}")
-                voxel_noise = float(voxel_noise)
-                if not (np.isfinite(voxel_noise) and voxel_noise >= 0):
-                    raise ValueError(f"voxel_noise_sd must be a number of bins, at least 0; got {voxel_noise!r}")
+            if voxel_noise is not None and (
+                isinstance(voxel_noise, bool)
+                or not isinstance(voxel_noise, (int, float))
+                or not (np.isfinite(voxel_noise) and voxel_noise >= 0)
+            ):
+                raise ValueError(f"voxel_noise_sd must be a number of bins, at least 0; got {voxel_noise!r}")
             tissues = [Tissue.from_dict(t) for t in data["tissues"]]
             members = sorted(c for t in tissues for c in t.classes)
             if members != list(range(len(classes))) or [t.id for t in tissues] != list(range(len(tissues))):
@@ -846,11 +846,10 @@ def design_transfer_function(
         classes = build_classes(
             clusters.labels, clusters.exemplars, bin_voxels, edges, background=opts["background"], bins=tap
         )
-        foreground = ~np.isin(clusters.labels, [c.id for c in classes if c.background])
-        voxel_noise = voxel_noise_sd(tap, foreground)
+        background = next((c.id for c in classes if c.background), None)
+        voxel_noise = voxel_noise_sd(tap, clusters.labels != background)
 
     with stage("tissues", "grouping classes into tissues and choosing their look"):
-        background = next((c.id for c in classes if c.background), None)
         hierarchy = tissue_hierarchy(
             clusters.labels,
             bin_voxels,
