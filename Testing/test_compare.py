@@ -278,6 +278,43 @@ def test_the_kept_preset_is_matched_in_brightness_and_colour_noise(brightness, n
     assert f"on **{int(keeps_up)} of 1** volumes" in lines[-1]
 
 
+def _with_gallery(case: dict, looks: dict) -> dict:
+    """``case`` with gallery looks as ``add_gallery_looks`` ranks them: ``looks[name][view] = (share, brightness)``."""
+    compare = _load("compare")
+    case = {**case, "gallery_looks": list(looks), "best_look": next(iter(looks))}
+    case["tissues"] = {v: dict(case["tissues"][v]) for v in compare.VIEWS}
+    case["metrics"] = {v: dict(case["metrics"][v]) for v in compare.VIEWS}
+    for name, views in looks.items():
+        for view, (share, brightness) in views.items():
+            case["tissues"][view][compare.GALLERY_LOOK + name] = {"skull": {"share": share}}
+            case["metrics"][view][compare.GALLERY_LOOK + name] = {"brightness": brightness, "colour_noise": 1.0}
+    return case
+
+
+def test_some_look_keeps_up_when_one_look_does_in_every_view():
+    # The first click is too dark; the look showing most is too (ranked first); a later one keeps up in both views.
+    compare = _load("compare")
+    dark = _kept_case(
+        {compare.OURS: (0.9,), compare.KEPT: (0.9,)}, {compare.OURS: 50.0, compare.KEPT: 100.0},
+        {compare.OURS: 1.0, compare.KEPT: 1.0}, shown_for=("skull",),
+    )  # fmt: skip
+    both = dict.fromkeys(compare.VIEWS, (0.95, 60.0))
+    lines = compare.kept_summary(
+        {"head": _with_gallery(dark, {"most": both, "bright": dict.fromkeys(compare.VIEWS, (0.9, 80.0))})}
+    )
+    rows = [line for line in lines if line.startswith("| head |")]
+    assert all("| bright | 90% | 0.80 |" in row and row.endswith("| yes |") for row in rows)
+    assert "on **0 of 1** volumes; the first click or the best look, on **1 of 1**" in lines[-1]
+    # One look per view is not one look: each keeps up in one view only.
+    halves = {
+        "anterior-only": {"anterior": (0.9, 80.0), "left": (0.9, 79.0)},
+        "left-only": {"anterior": (0.9, 79.0), "left": (0.9, 80.0)},
+    }
+    lines = compare.kept_summary({"head": _with_gallery(dark, halves)})
+    assert "the first click or the best look, on **0 of 1**" in lines[-1]
+    assert all("| anterior-only |" in line for line in lines if line.startswith("| head |"))  # the first ranked
+
+
 def test_volumes_without_a_kept_preset_have_no_kept_table():
     compare = _load("compare")
     case = _kept_case(
@@ -416,3 +453,22 @@ def test_the_best_look_of_the_gallery_joins_the_columns_when_it_beats_the_first_
             assert np.array_equal(design.transfer_function().opacity, first)  # the first click is left shown
         assert added  # the blob's shell is better shown by another look than the first click (outer-surface)
         assert compare.add_best_look(headless, volume_node, looks, values, None, None, ("shell",)) is None
+
+
+def test_every_look_of_the_gallery_joins_the_columns_on_a_kept_volume(tmp_path):
+    rendering, compare = _slicer_and_compare()
+    values = _blob(np.int16, 400)
+    labels = np.where((values > 0) & (values < 200), 1, np.where(values >= 200, 2, 0))
+    names = ("air", "shell", "core")
+    with rendering.HeadlessSlicer(size=(64, 64), presets_file=_logic_presets(tmp_path)) as headless:
+        volume_node = headless.add_volume(values)
+        looks = compare.prepare_looks(headless, volume_node, values, (1.0, 1.0, 1.0), ("Steep",))
+        design = looks[0].design
+        first = design.look_name or design.looks[0].name
+        before = len(looks)
+        ranked = compare.add_gallery_looks(headless, volume_node, looks, values, labels, names, ("shell",))
+        assert sorted(ranked) == sorted(look.name for look in design.looks if look.name != first)
+        assert [look.name for look in looks[before:]] == [compare.GALLERY_LOOK + name for name in ranked]
+        shown = compare._shown_by_look(design, values, labels, names, ("shell",))
+        assert [shown[name] for name in ranked] == sorted((shown[name] for name in ranked), reverse=True)
+        assert (design.look_name or design.looks[0].name) == first  # the first click is left shown

@@ -11,7 +11,8 @@ volume rendering logic with Slicer's presets.xml loaded, CPU ray casting, black 
 
 - **ours**: ``design_transfer_function(values, spacing)`` with its defaults, shown through ``mrml.apply_design``;
 - **ours, best look**: where the volume has labels, the look of our gallery whose picture shows most of what the
-  user scanned for (``add_best_look``), when it is not the first click;
+  user scanned for (``add_best_look``), when it is not the first click; on a volume with a kept preset, every look
+  of the gallery (``add_gallery_looks``), each judged against that preset;
 - **Slicer's first click**: the property ``vtkSlicerVolumeRenderingLogic::CreateDefaultVolumeRenderingNodes``
   gives a new volume: ``UpdateDisplayNodeFromVolumeNode`` (a ramp from the volume's window/level), then
   ``SetRecommendedVolumeRenderingProperties``, which copies a preset unchanged: "US-Fetal" for 8-bit data, else
@@ -81,6 +82,8 @@ FIRST_CLICK = "first click"
 KEPT = "kept"
 #: The look of our gallery that shows most of what the user scanned for, where it is not the first click.
 BEST_LOOK = "best look"
+#: Columns of every look of our gallery on a volume with a kept preset: ``look: <name>``.
+GALLERY_LOOK = "look: "
 
 #: The issue's targets, against the best-suited preset of each volume and view.
 MAX_NOISE_RATIO = 1.3
@@ -217,24 +220,14 @@ def _preset_node(headless: Any, name: str, shift: float, storage=None) -> Any:
     return node
 
 
-def add_best_look(
-    headless: Any,
-    volume_node: Any,
-    looks: list[Look],
-    values: np.ndarray,
-    labels: np.ndarray | None,
-    names: Sequence[str] | None,
-    shown_for: Sequence[str],
-) -> str | None:
-    """Append the look of our gallery whose picture shows most of ``shown_for`` (the library's visibility
-    histogram, as ``look_panel.py`` measures it; of equals, the one whose least shown structure gets most) as its own
-    property node, unless it is the first click; return its name (None without labels or when the first click is
-    best)."""
+def _shown_by_look(
+    design: Any, values: np.ndarray, labels: np.ndarray, names: Sequence[str], shown_for: Sequence[str]
+) -> dict[str, tuple[float, float]]:
+    """Per look of the gallery, how much of ``shown_for`` its picture shows (the library's visibility histogram, as
+    ``look_panel.py`` measures it): the rounded sum of the structures' shares, then the least of them; the first
+    click is left shown."""
     from look_panel import label_fractions, picture_shares
 
-    design = looks[0].design  # type: ignore[attr-defined]
-    if labels is None or not names or not shown_for:
-        return None
     fractions = label_fractions(values, labels, len(names), design)
     first = design.look_name or design.looks[0].name
     shown = {}
@@ -244,14 +237,61 @@ def add_best_look(
         each = [float(shares[list(names).index(n)]) for n in shown_for]
         shown[look.name] = (round(sum(each), 3), min(each))  # then, of equals, the one that shows each structure
     design.use_look(first)
+    return shown
+
+
+def _add_look_column(headless: Any, volume_node: Any, looks: list[Look], look: Any, column: str) -> None:
+    design = looks[0].design  # type: ignore[attr-defined]
+    node = headless.scene.AddNewNodeByClass("vtkMRMLVolumePropertyNode", f"{volume_node.GetName()} {look.name}")
+    node.GetVolumeProperty().DeepCopy(design.volume_property(look))
+    node.SetEffectiveRange(*design.value_range)
+    looks.append(Look(column, f"ours, {look.name}", node))
+
+
+def add_best_look(
+    headless: Any,
+    volume_node: Any,
+    looks: list[Look],
+    values: np.ndarray,
+    labels: np.ndarray | None,
+    names: Sequence[str] | None,
+    shown_for: Sequence[str],
+) -> str | None:
+    """Append the look of our gallery whose picture shows most of ``shown_for`` (of equals, the one whose least
+    shown structure gets most; see :func:`_shown_by_look`) as its own property node, unless it is the first click;
+    return its name (None without labels or when the first click is best)."""
+    design = looks[0].design  # type: ignore[attr-defined]
+    if labels is None or not names or not shown_for:
+        return None
+    shown = _shown_by_look(design, values, labels, names, shown_for)
+    first = design.look_name or design.looks[0].name
     best = max(design.looks, key=lambda look: shown[look.name])
     if shown[best.name] <= shown[first]:
         return None
-    node = headless.scene.AddNewNodeByClass("vtkMRMLVolumePropertyNode", f"{volume_node.GetName()} {best.name}")
-    node.GetVolumeProperty().DeepCopy(design.volume_property(best))
-    node.SetEffectiveRange(*design.value_range)
-    looks.append(Look(BEST_LOOK, f"ours, {best.name}", node))
+    _add_look_column(headless, volume_node, looks, best, BEST_LOOK)
     return best.name
+
+
+def add_gallery_looks(
+    headless: Any,
+    volume_node: Any,
+    looks: list[Look],
+    values: np.ndarray,
+    labels: np.ndarray,
+    names: Sequence[str],
+    shown_for: Sequence[str],
+) -> list[str]:
+    """Append every look of our gallery but the first click, as columns ``look: <name>``, ranked by how much of
+    ``shown_for`` each shows (:func:`_shown_by_look`), most first; return their names in that order. Whether *some*
+    look keeps up with a kept preset is a question about every look: the one showing most may be the darker."""
+    design = looks[0].design  # type: ignore[attr-defined]
+    shown = _shown_by_look(design, values, labels, names, shown_for)
+    first = design.look_name or design.looks[0].name
+    others = [look for look in design.looks if look.name != first]
+    ranked = sorted(others, key=lambda look: shown[look.name], reverse=True)  # stable: gallery order among equals
+    for look in ranked:
+        _add_look_column(headless, volume_node, looks, look, GALLERY_LOOK + look.name)
+    return [look.name for look in ranked]
 
 
 def map_property(volume_property: Any, slope: float, offset: float) -> None:
@@ -417,7 +457,12 @@ def run_case(case: PanelVolume, presets: PresetsSource, size: int, gpu: bool, ba
     with HeadlessSlicer(size=(size, size), presets_file=presets.path, background=background) as headless:
         volume_node = headless.add_volume(values, name=case.key, ijk_to_ras=ijk_to_ras)
         looks = prepare_looks(headless, volume_node, values, spacing, suited, storage, case.kept)
-        best_look = add_best_look(headless, volume_node, looks, values, labels, tissues, case.shown_for)
+        if case.kept and labels is not None and tissues and case.shown_for:
+            gallery = add_gallery_looks(headless, volume_node, looks, values, labels, tissues, case.shown_for)
+            best_look = gallery[0] if gallery else None
+        else:
+            gallery, best_look = [], add_best_look(headless, volume_node, looks, values, labels, tissues,
+                                                   case.shown_for)  # fmt: skip
         for view in VIEWS:
             for name, picture in render_view(headless, volume_node, looks, view, size).items():
                 pictures[(view, name)] = picture
@@ -464,6 +509,7 @@ def run_case(case: PanelVolume, presets: PresetsSource, size: int, gpu: bool, ba
         "first_click_preset": picked,
         "best_preset": best,
         "best_look": best_look,
+        "gallery_looks": gallery,
         "looks": [{"name": n, "title": t} for n, t in columns],
         "design": {
             "n_classes": len(design.classes),
@@ -680,6 +726,18 @@ def visibility_summary(volumes: dict) -> list[str]:
 SHARE_TOLERANCE = 0.01
 
 
+def _kept_verdict(case: dict, view: str, look: str) -> tuple[float | None, float | None, bool]:
+    """Brightness and colour-noise ratios of ``look`` against the kept preset in ``view``, and whether it keeps up:
+    each structure scanned for at least at the kept picture's share (a core and its envelope, not their sum), the
+    brightness and colour-noise bounds (no colour noise compared over a grey kept picture)."""
+    stats, metrics = case["tissues"][view], case["metrics"][view]
+    b = ratio(metrics[look]["brightness"], metrics[KEPT]["brightness"])
+    n = ratio(metrics[look]["colour_noise"], metrics[KEPT]["colour_noise"], GREY_NOISE)
+    n_ok = n is None or n <= MAX_NOISE_RATIO
+    shown = all(stats[look][t]["share"] >= stats[KEPT][t]["share"] - SHARE_TOLERANCE for t in case["shown_for"])
+    return b, n, shown and b is not None and b >= MIN_BRIGHTNESS_RATIO and n_ok
+
+
 def kept_summary(volumes: dict) -> list[str]:
     """Markdown: per real volume and view, ours (the first click, then our best look) against the preset a user would
     keep there, with its shift (``../shared/data/README.md``'s reading), rendered here through the same camera: the
@@ -695,8 +753,8 @@ def kept_summary(volumes: dict) -> list[str]:
         "presets of the volume's kind, shifted), rendered here beside ours. A view keeps up when ours shows each "
         f"structure scanned for with at least the kept picture's share (within {100 * SHARE_TOLERANCE:g} point), "
         f"at least {MIN_BRIGHTNESS_RATIO}x its brightness and at most {MAX_NOISE_RATIO}x its colour noise; a volume, "
-        "when both views do. Best look: the look of our gallery showing most of what was scanned for, where it is "
-        "not the first click, judged the same way.",
+        "when both views do. Best look: every other look of our gallery is rendered and judged the same way; the "
+        "table gives the one that keeps up in both views, else the one showing most of what was scanned for.",
         "",
         "| volume | view | kept preset | scanned for | kept | first click | B ratio | N ratio | keeps up | "
         "best look | its share | B ratio | N ratio | keeps up |",
@@ -705,39 +763,30 @@ def kept_summary(volumes: dict) -> list[str]:
     first_ok, any_ok = [], []
     for key, case in kept.items():
         name, shift = case["kept"]
-        views_first, views_any = [], []
+        first = {view: _kept_verdict(case, view, OURS) for view in VIEWS}
+        candidates = [GALLERY_LOOK + look for look in case.get("gallery_looks") or []] or [
+            look for look in (BEST_LOOK,) if look in case["metrics"][VIEWS[0]]
+        ]
+        verdicts = {look: {view: _kept_verdict(case, view, look) for view in VIEWS} for look in candidates}
+        # The look that keeps up in every view, else the one showing most (the candidates are ranked so).
+        keeping = [look for look in candidates if all(v[2] for v in verdicts[look].values())]
+        best = (keeping or candidates or [None])[0]
+        best_name = case["best_look"] if best == BEST_LOOK else (best or "")[len(GALLERY_LOOK) :]
         for view in VIEWS:
-            stats, metrics = case["tissues"][view], case["metrics"][view]
+            stats = case["tissues"][view]
             share = {look: _shares_text(stats[look], case["shown_for"]) for look in stats}
-            verdicts = {}
-            for look in (OURS, BEST_LOOK):
-                if look not in metrics:
-                    continue
-                b = ratio(metrics[look]["brightness"], metrics[KEPT]["brightness"])
-                n = ratio(metrics[look]["colour_noise"], metrics[KEPT]["colour_noise"], GREY_NOISE)
-                n_ok = n is None or n <= MAX_NOISE_RATIO  # a grey kept picture: no colour to compare with
-                # Each structure scanned for at least as well: a core and its envelope, not their sum.
-                shown = all(
-                    stats[look][t]["share"] >= stats[KEPT][t]["share"] - SHARE_TOLERANCE for t in case["shown_for"]
-                )
-                verdicts[look] = (b, n, shown and b is not None and b >= MIN_BRIGHTNESS_RATIO and n_ok)
-            b, n, ok = verdicts[OURS]
-            best = verdicts.get(BEST_LOOK)
-            views_first.append(ok)
-            views_any.append(ok or bool(best and best[2]))
-            best_cells = (
-                f"{case['best_look']} | {share[BEST_LOOK]} | {_fmt(best[0])} | {_fmt(best[1])} | "
-                f"{'yes' if best[2] else '**no**'}"
-                if best
-                else "- | - | - | - | -"
-            )
+            b, n, ok = first[view]
+            best_cells = "- | - | - | - | -"
+            if best is not None:
+                bb, bn, bok = verdicts[best][view]
+                best_cells = f"{best_name} | {share[best]} | {_fmt(bb)} | {_fmt(bn)} | {'yes' if bok else '**no**'}"
             lines.append(
                 f"| {key} | {view} | {name}, shift {shift:+g} | {', '.join(case['shown_for'])} | "
                 f"{share[KEPT]} | {share[OURS]} | {_fmt(b)} | {_fmt(n)} | {'yes' if ok else '**no**'} | "
                 f"{best_cells} |"
             )
-        first_ok.append(all(views_first))
-        any_ok.append(all(views_any))
+        first_ok.append(all(v[2] for v in first.values()))
+        any_ok.append(first_ok[-1] or bool(keeping))
     lines += [
         "",
         f"The first click keeps up with the kept preset on **{sum(first_ok)} of {len(kept)}** volumes; the first click "
