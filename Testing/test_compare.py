@@ -6,6 +6,7 @@ Slicer's presets.xml is never needed: the tests write a tiny presets file of the
 import importlib
 import sys
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 import pytest
@@ -230,13 +231,20 @@ def test_verdict_applies_the_issue_targets():
     assert compare.ratio(2.0, 4.0) == 0.5 and compare.ratio(1.0, 0.0) is None
 
 
-def _kept_case(shares: dict, brightness: dict, noise: dict, shown_for=("core", "envelope")) -> dict:
-    """One volume of compare.json as kept_summary reads it: per look, each structure's share, B and N (both views)."""
+def _kept_case(
+    shares: dict, brightness: dict, noise: dict, shown_for=("core", "envelope"), coverage: Optional[dict] = None
+) -> dict:
+    """One volume of compare.json as kept_summary reads it: per look, each structure's share, B, N and C (coverage,
+    0.5 unless given), both views."""
     compare = _load("compare")
     looks = {compare.OURS: 0, compare.KEPT: 1}
+    coverage = coverage or dict.fromkeys(looks, 0.5)
     view = {
         "tissues": {look: {t: {"share": shares[look][i]} for i, t in enumerate(shown_for)} for look in looks},
-        "metrics": {look: {"brightness": brightness[look], "colour_noise": noise[look]} for look in looks},
+        "metrics": {
+            look: {"brightness": brightness[look], "colour_noise": noise[look], "coverage": coverage[look]}
+            for look in looks
+        },
     }
     return {
         "kept": ["CT-AAA", 100.0],
@@ -287,7 +295,11 @@ def _with_gallery(case: dict, looks: dict) -> dict:
     for name, views in looks.items():
         for view, (share, brightness) in views.items():
             case["tissues"][view][compare.GALLERY_LOOK + name] = {"skull": {"share": share}}
-            case["metrics"][view][compare.GALLERY_LOOK + name] = {"brightness": brightness, "colour_noise": 1.0}
+            case["metrics"][view][compare.GALLERY_LOOK + name] = {
+                "brightness": brightness,
+                "colour_noise": 1.0,
+                "coverage": 0.5,
+            }
     return case
 
 
@@ -303,7 +315,7 @@ def test_some_look_keeps_up_when_one_look_does_in_every_view():
         {"head": _with_gallery(dark, {"most": both, "bright": dict.fromkeys(compare.VIEWS, (0.9, 80.0))})}
     )
     rows = [line for line in lines if line.startswith("| head |")]
-    assert all("| bright | 90% | 0.80 |" in row and row.endswith("| yes |") for row in rows)
+    assert all("| bright | 90% | 0.80 | 1.00 | 1.00 | yes |" in row for row in rows)
     assert "on **0 of 1** volumes; the first click or the best look, on **1 of 1**" in lines[-1]
     # One look per view is not one look: each keeps up in one view only.
     halves = {
@@ -313,6 +325,22 @@ def test_some_look_keeps_up_when_one_look_does_in_every_view():
     lines = compare.kept_summary({"head": _with_gallery(dark, halves)})
     assert "the first click or the best look, on **0 of 1**" in lines[-1]
     assert all("| anterior-only |" in line for line in lines if line.startswith("| head |"))  # the first ranked
+
+
+@pytest.mark.parametrize(("coverage", "keeps_up"), [(0.4, True), (0.39, False)])
+def test_the_kept_preset_is_matched_in_the_area_it_covers(coverage, keeps_up):
+    # A plume's core alone is 100% plume: the picture must also cover 0.8x the area the kept one does.
+    compare = _load("compare")
+    assert compare.MIN_COVERAGE_RATIO == 0.8
+    case = _kept_case(
+        {compare.OURS: (1.0,), compare.KEPT: (1.0,)},
+        {compare.OURS: 100.0, compare.KEPT: 100.0},
+        {compare.OURS: 1.0, compare.KEPT: 1.0},
+        shown_for=("plume",),
+        coverage={compare.OURS: coverage, compare.KEPT: 0.5},
+    )
+    lines = compare.kept_summary({"fuel": case})
+    assert f"on **{int(keeps_up)} of 1** volumes" in lines[-1]
 
 
 def test_volumes_without_a_kept_preset_have_no_kept_table():

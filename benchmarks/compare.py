@@ -88,6 +88,9 @@ GALLERY_LOOK = "look: "
 #: The issue's targets, against the best-suited preset of each volume and view.
 MAX_NOISE_RATIO = 1.3
 MIN_BRIGHTNESS_RATIO = 0.8
+#: Against a kept preset, the picture must also cover at least this share of the area the kept one covers: a share
+#: of the picture says how pure it is, not how much of the structure it shows (a plume's core alone is 100% plume).
+MIN_COVERAGE_RATIO = 0.8
 #: A picture whose colour noise is at most this (chroma units) is grey (Slicer's window/level ramp measures 1e-16,
 #: the rounding of the chroma matrix): no colour-noise ratio is taken over it.
 GREY_NOISE = 0.01
@@ -726,16 +729,18 @@ def visibility_summary(volumes: dict) -> list[str]:
 SHARE_TOLERANCE = 0.01
 
 
-def _kept_verdict(case: dict, view: str, look: str) -> tuple[float | None, float | None, bool]:
-    """Brightness and colour-noise ratios of ``look`` against the kept preset in ``view``, and whether it keeps up:
-    each structure scanned for at least at the kept picture's share (a core and its envelope, not their sum), the
-    brightness and colour-noise bounds (no colour noise compared over a grey kept picture)."""
+def _kept_verdict(case: dict, view: str, look: str) -> tuple[float | None, float | None, float | None, bool]:
+    """Brightness, colour-noise and coverage ratios of ``look`` against the kept preset in ``view``, and whether it
+    keeps up: each structure scanned for at least at the kept picture's share (a core and its envelope, not their
+    sum), the brightness, colour-noise (none compared over a grey kept picture) and coverage bounds."""
     stats, metrics = case["tissues"][view], case["metrics"][view]
     b = ratio(metrics[look]["brightness"], metrics[KEPT]["brightness"])
     n = ratio(metrics[look]["colour_noise"], metrics[KEPT]["colour_noise"], GREY_NOISE)
+    c = ratio(metrics[look]["coverage"], metrics[KEPT]["coverage"])
     n_ok = n is None or n <= MAX_NOISE_RATIO
     shown = all(stats[look][t]["share"] >= stats[KEPT][t]["share"] - SHARE_TOLERANCE for t in case["shown_for"])
-    return b, n, shown and b is not None and b >= MIN_BRIGHTNESS_RATIO and n_ok
+    covers = c is not None and c >= MIN_COVERAGE_RATIO
+    return b, n, c, shown and b is not None and b >= MIN_BRIGHTNESS_RATIO and n_ok and covers
 
 
 def kept_summary(volumes: dict) -> list[str]:
@@ -752,13 +757,14 @@ def kept_summary(volumes: dict) -> list[str]:
         "The kept preset and shift are the reading of `../shared/data/README.md` (a demanding user's choice among the "
         "presets of the volume's kind, shifted), rendered here beside ours. A view keeps up when ours shows each "
         f"structure scanned for with at least the kept picture's share (within {100 * SHARE_TOLERANCE:g} point), "
-        f"at least {MIN_BRIGHTNESS_RATIO}x its brightness and at most {MAX_NOISE_RATIO}x its colour noise; a volume, "
-        "when both views do. Best look: every other look of our gallery is rendered and judged the same way; the "
+        f"at least {MIN_BRIGHTNESS_RATIO}x its brightness, at most {MAX_NOISE_RATIO}x its colour noise and at least "
+        f"{MIN_COVERAGE_RATIO}x the area it covers (C ratio); a volume, when both views do. Best look: every other "
+        "look of our gallery is rendered and judged the same way; the "
         "table gives the one that keeps up in both views, else the one showing most of what was scanned for.",
         "",
-        "| volume | view | kept preset | scanned for | kept | first click | B ratio | N ratio | keeps up | "
-        "best look | its share | B ratio | N ratio | keeps up |",
-        "|---|---|---|---|---:|---:|---:|---:|---|---|---:|---:|---:|---|",
+        "| volume | view | kept preset | scanned for | kept | first click | B ratio | N ratio | C ratio | keeps up | "
+        "best look | its share | B ratio | N ratio | C ratio | keeps up |",
+        "|---|---|---|---|---:|---:|---:|---:|---:|---|---|---:|---:|---:|---:|---|",
     ]
     first_ok, any_ok = [], []
     for key, case in kept.items():
@@ -769,23 +775,25 @@ def kept_summary(volumes: dict) -> list[str]:
         ]
         verdicts = {look: {view: _kept_verdict(case, view, look) for view in VIEWS} for look in candidates}
         # The look that keeps up in every view, else the one showing most (the candidates are ranked so).
-        keeping = [look for look in candidates if all(v[2] for v in verdicts[look].values())]
+        keeping = [look for look in candidates if all(v[3] for v in verdicts[look].values())]
         best = (keeping or candidates or [None])[0]
         best_name = case["best_look"] if best == BEST_LOOK else (best or "")[len(GALLERY_LOOK) :]
         for view in VIEWS:
             stats = case["tissues"][view]
             share = {look: _shares_text(stats[look], case["shown_for"]) for look in stats}
-            b, n, ok = first[view]
-            best_cells = "- | - | - | - | -"
+            b, n, c, ok = first[view]
+            best_cells = "- | - | - | - | - | -"
             if best is not None:
-                bb, bn, bok = verdicts[best][view]
-                best_cells = f"{best_name} | {share[best]} | {_fmt(bb)} | {_fmt(bn)} | {'yes' if bok else '**no**'}"
+                bb, bn, bc, bok = verdicts[best][view]
+                best_cells = (
+                    f"{best_name} | {share[best]} | {_fmt(bb)} | {_fmt(bn)} | {_fmt(bc)} | {'yes' if bok else '**no**'}"
+                )
             lines.append(
                 f"| {key} | {view} | {name}, shift {shift:+g} | {', '.join(case['shown_for'])} | "
-                f"{share[KEPT]} | {share[OURS]} | {_fmt(b)} | {_fmt(n)} | {'yes' if ok else '**no**'} | "
+                f"{share[KEPT]} | {share[OURS]} | {_fmt(b)} | {_fmt(n)} | {_fmt(c)} | {'yes' if ok else '**no**'} | "
                 f"{best_cells} |"
             )
-        first_ok.append(all(v[2] for v in first.values()))
+        first_ok.append(all(v[3] for v in first.values()))
         any_ok.append(first_ok[-1] or bool(keeping))
     lines += [
         "",
