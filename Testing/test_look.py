@@ -8,6 +8,7 @@ import pytest
 from IsoSimilarityTFLib import TransferFunctionDesign, design_transfer_function
 from IsoSimilarityTFLib.classes import IsovalueClass
 from IsoSimilarityTFLib.look import (
+    IVORY_PLACE,
     RAMP,
     SHOWN_PLACE,
     _VisibilityStep,
@@ -676,3 +677,21 @@ def test_the_core_of_small_vessels_is_shown_with_the_fringe_cleared():
     means = np.array([0.0, 20.0, 30.0, 40.0, 60.0])
     look = default_look(classes, tissue_of, means, "mr", noise_sd=1.0)
     assert look.visible == [False, False, False, True, True]
+
+
+@pytest.mark.parametrize("kind", ["ct", "mr"])
+def test_a_dense_class_is_drawn_from_ivory_up_on_ct(kind):
+    # Soft tissue (classes 1-2), a low dense class (3, bone's partial volume) and the bone's peak (4), a tail: on CT
+    # the ramp alone puts class 3 at mid-ramp, below ivory; as a dense class it starts at ivory, the peak at white.
+    classes = make_classes([10_000, 2000, 2000, 100, 100])
+    means = np.array([0.0, 10.0, 12.0, 20.0, 40.0])
+    tissue_of = np.array([0, 1, 1, 2, 2])
+    plain = default_look(classes, tissue_of, means, kind, noise_sd=1.0)
+    dense = default_look(classes, tissue_of, means, kind, noise_sd=1.0, dense_classes=[False] * 3 + [True] * 2)
+    ivory = ramp_colors(np.array([IVORY_PLACE]))[0]
+    if kind == "ct":
+        assert sum(plain.colors[3]) < ivory.sum() - 1e-6  # the ramp alone: darker than ivory
+        assert np.allclose(dense.colors[3], ivory) and np.allclose(dense.colors[4], 1.0)
+        assert dense.colors[:3] == plain.colors[:3]  # the other classes keep the ramp's colour
+    else:
+        assert dense.colors == plain.colors  # one colour per tissue elsewhere

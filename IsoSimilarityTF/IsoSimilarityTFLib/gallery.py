@@ -282,6 +282,7 @@ def _default(context: LookContext, kind: str) -> Made:
             preview=context.preview,
             colors=context.colors,
             max_classes=context.max_classes,
+            dense_classes=context.of_role("dense"),
             rules=context.rules,
         )
     look = context._defaults[key]

@@ -35,7 +35,8 @@ the same tissues, the same opacities and the same picture.
 Colours follow one ramp ordered by intensity (dark red -> tan -> ivory -> white), placed by mean value between the
 lowest shown tissue (at tan, :data:`SHOWN_PLACE`: no shown structure takes the dark end, which reads as a shadow)
 and the densest real one: one colour per tissue, so neighbouring classes never read as rainbow
-rings; on CT (``kind`` ``"ct"``) each class at its own mean, continuous as in the CT presets. White is kept for a
+rings; on CT (``kind`` ``"ct"``) each class at its own mean, continuous as in the CT presets, and a dense class
+(role ``"dense"``, :mod:`.roles`: bone, contrast, metal) from ivory up, as those presets draw them. White is kept for a
 densest tissue that is a tail (at most :attr:`.LookRules.white_share` of the largest tissue's voxels: bone, contrast):
 a large bright tissue (white matter) ends at ivory, or the headlight washes it out. The qualitative palette stays
 available (``colors="distinct"``).
@@ -216,6 +217,7 @@ def default_look(
     preview: Optional[Preview] = None,
     colors: str = "ramp",
     max_classes: int = 15,
+    dense_classes: Optional[Sequence[bool]] = None,
     rules: LookRules = RULES,
 ) -> Look:
     """Colour, opacity and visibility of every class (see the module notes).
@@ -235,6 +237,8 @@ def default_look(
         max_classes: tissues are shown whole, the largest first, while they hold at most this many classes (the
             densest real tissue always, besides them, and every tissue between two shown ones where a shown tissue
             fills the object on data that are not CT-like).
+        dense_classes: ``(n_classes,)`` whether each class is dense (:func:`.roles.class_roles`); on CT their
+            colours run from ivory (:data:`IVORY_PLACE`) up, by value among them. None: by the ramp alone.
         rules: the thresholds.
     """
     if kind not in KINDS:
@@ -340,15 +344,25 @@ def default_look(
         tail = top != largest and tissue_voxels[top] <= rules.white_share * tissue_voxels[largest]
         end = 1.0 if tail or len(anchors) == 1 else IVORY_PLACE
 
-        def ramp_at(value: float) -> list[float]:
-            share = (value - low) / (high - low) if high > low else 1.0
-            place = SHOWN_PLACE + (end - SHOWN_PLACE) * min(max(share, 0.0), 1.0)
+        def place_at(value: float, start: float = SHOWN_PLACE, lowest: float = low) -> float:
+            share = (value - lowest) / (high - lowest) if high > lowest else 1.0
+            return start + (end - start) * min(max(share, 0.0), 1.0)
+
+        def color_at(place: float) -> list[float]:
             return [float(v) for v in ramp_colors(np.array([place]))[0]]
 
         for t in foreground:
-            tissue_color[t] = ramp_at(tissue_value[t])
+            tissue_color[t] = color_at(place_at(tissue_value[t]))
         if kind == "ct":
-            class_color = {c.id: ramp_at(class_values[c.id]) for c in classes if not c.background}
+            place = {c.id: place_at(class_values[c.id]) for c in classes if not c.background}
+            dense_ids = [c for c in place if dense_classes is not None and dense_classes[c]]
+            if dense_ids:
+                # A dense part is another material (bone, contrast, metal): ivory to white, as the CT presets draw
+                # it, placed by value among the dense classes; never darker than the ramp has it.
+                lowest = min(class_values[c] for c in dense_ids)
+                for c in dense_ids:
+                    place[c] = max(place[c], place_at(class_values[c], IVORY_PLACE, lowest))
+            class_color = {c: color_at(p) for c, p in place.items()}
     elif colors == "distinct":
         for i, t in enumerate(sorted(foreground, key=lambda t: (-tissue_voxels[t], t))):
             tissue_color[t] = list(PALETTE[i % len(PALETTE)])
