@@ -244,6 +244,7 @@ def _shown_by_look(
 
 
 def _add_look_column(headless: Any, volume_node: Any, looks: list[Look], look: Any, column: str) -> None:
+    """Append ``look`` of the first click's design as a property node of its own, in the column ``column``."""
     design = looks[0].design  # type: ignore[attr-defined]
     node = headless.scene.AddNewNodeByClass("vtkMRMLVolumePropertyNode", f"{volume_node.GetName()} {look.name}")
     node.GetVolumeProperty().DeepCopy(design.volume_property(look))
@@ -460,12 +461,12 @@ def run_case(case: PanelVolume, presets: PresetsSource, size: int, gpu: bool, ba
     with HeadlessSlicer(size=(size, size), presets_file=presets.path, background=background) as headless:
         volume_node = headless.add_volume(values, name=case.key, ijk_to_ras=ijk_to_ras)
         looks = prepare_looks(headless, volume_node, values, spacing, suited, storage, case.kept)
+        gallery: list[str] = []
         if case.kept and labels is not None and tissues and case.shown_for:
             gallery = add_gallery_looks(headless, volume_node, looks, values, labels, tissues, case.shown_for)
             best_look = gallery[0] if gallery else None
         else:
-            gallery, best_look = [], add_best_look(headless, volume_node, looks, values, labels, tissues,
-                                                   case.shown_for)  # fmt: skip
+            best_look = add_best_look(headless, volume_node, looks, values, labels, tissues, case.shown_for)
         for view in VIEWS:
             for name, picture in render_view(headless, volume_node, looks, view, size).items():
                 pictures[(view, name)] = picture
