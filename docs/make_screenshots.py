@@ -3,7 +3,8 @@
 Run from the repository root: .venv/bin/python docs/make_screenshots.py (needs the Debian packages
 invesalius-examples and mricron-data for the two real volumes). Class grids and the gallery's thumbnails are stored
 as 256-colour PNGs (Pillow's max-coverage quantizer) to keep the repository small; commit a picture only when it
-changes what a reader sees.
+changes what a reader sees. The comparison montages the README shows are copied from `make compare`'s pictures
+(benchmarks/results/pictures, never committed) when they are there, at 2/3 of their size in 256 colours.
 """
 
 import shutil
@@ -19,6 +20,9 @@ from isosimtf.volume_io import real_dataset_path
 ROOT = Path(__file__).resolve().parents[1]
 SHOTS = ROOT / "Resources" / "Screenshots"
 TOOL = Path(sys.executable).with_name("isosimtf")
+#: make compare's montages the README shows: the head CT in two storages, and two volumes where we lose.
+COMPARE_PICTURES = ROOT / "benchmarks" / "results" / "pictures"
+COMPARE_MONTAGES = ("head-ct", "head-ct-8bit", "mr-brain-stroke-flair", "cta-chest-clipped")
 
 
 def main() -> None:
@@ -42,6 +46,16 @@ def main() -> None:
                 quantized = grid.quantize(256, method=Image.Quantize.MAXCOVERAGE)
                 quantized.save(SHOTS / f"{name}-{grid_name}.png", optimize=True)
         print(f"{name}: done")
+    for name in COMPARE_MONTAGES:
+        source = COMPARE_PICTURES / f"compare-{name}.png"
+        if not source.is_file():
+            print(f"skipping compare-{name}: run make compare first")
+            continue
+        montage = Image.open(source).convert("RGB")
+        montage = montage.resize((montage.width * 2 // 3, montage.height * 2 // 3), Image.Resampling.LANCZOS)
+        quantized = montage.quantize(256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE)
+        quantized.save(SHOTS / f"compare-{name}.png", optimize=True)
+        print(f"compare-{name}: done")
 
 
 if __name__ == "__main__":
