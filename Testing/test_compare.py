@@ -476,7 +476,7 @@ def test_the_best_look_of_the_gallery_joins_the_columns_when_it_beats_the_first_
                 assert len(looks) == before
             else:
                 assert looks[-1].name == compare.BEST_LOOK and best in looks[-1].title
-                assert best != (design.look_name or design.looks[0].name)
+                assert best != design.chosen_look
                 added.append(best)
             assert np.array_equal(design.transfer_function().opacity, first)  # the first click is left shown
         assert added  # the blob's shell is better shown by another look than the first click (outer-surface)
@@ -492,11 +492,11 @@ def test_every_look_of_the_gallery_joins_the_columns_on_a_kept_volume(tmp_path):
         volume_node = headless.add_volume(values)
         looks = compare.prepare_looks(headless, volume_node, values, (1.0, 1.0, 1.0), ("Steep",))
         design = looks[0].design
-        first = design.look_name or design.looks[0].name
+        first = design.chosen_look
         before = len(looks)
         ranked = compare.add_gallery_looks(headless, volume_node, looks, values, labels, names, ("shell",))
         assert sorted(ranked) == sorted(look.name for look in design.looks if look.name != first)
         assert [look.name for look in looks[before:]] == [compare.GALLERY_LOOK + name for name in ranked]
         shown = compare._shown_by_look(design, values, labels, names, ("shell",))
         assert [shown[name] for name in ranked] == sorted((shown[name] for name in ranked), reverse=True)
-        assert (design.look_name or design.looks[0].name) == first  # the first click is left shown
+        assert design.chosen_look == first  # the first click is left shown

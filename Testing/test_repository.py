@@ -2,6 +2,7 @@
 
 import subprocess
 from pathlib import Path
+from typing import Optional
 
 import pytest
 
@@ -10,8 +11,10 @@ ROOT = Path(__file__).resolve().parent.parent
 MAX_CLONE_MB = 90.0
 
 
-def _git(*args: str) -> str:
-    return subprocess.run(["git", "-C", str(ROOT), *args], capture_output=True, text=True, check=True).stdout
+def _git(*args: str, stdin: Optional[str] = None) -> str:
+    return subprocess.run(
+        ["git", "-C", str(ROOT), *args], input=stdin, capture_output=True, text=True, check=True
+    ).stdout
 
 
 def _history_bytes() -> int:
@@ -21,14 +24,8 @@ def _history_bytes() -> int:
     can hold twice; a clone gets each object once.
     """
     objects = _git("rev-list", "--objects", "HEAD", "--branches", "--tags")
-    sizes = subprocess.run(
-        # %(rest) makes cat-file read only the name before the path rev-list adds
-        ["git", "-C", str(ROOT), "cat-file", "--batch-check=%(objectsize:disk) %(rest)"],
-        input=objects,
-        capture_output=True,
-        text=True,
-        check=True,
-    ).stdout
+    # %(rest) makes cat-file read only the name before the path rev-list adds
+    sizes = _git("cat-file", "--batch-check=%(objectsize:disk) %(rest)", stdin=objects)
     return sum(int(line.split()[0]) for line in sizes.splitlines())
 
 

@@ -232,7 +232,7 @@ def _shown_by_look(
     from look_panel import label_fractions, picture_shares
 
     fractions = label_fractions(values, labels, len(names), design)
-    first = design.look_name or design.looks[0].name
+    first = design.chosen_look
     shown = {}
     for look in design.looks:
         design.use_look(look.name)
@@ -268,7 +268,7 @@ def add_best_look(
     if labels is None or not names or not shown_for:
         return None
     shown = _shown_by_look(design, values, labels, names, shown_for)
-    first = design.look_name or design.looks[0].name
+    first = design.chosen_look
     best = max(design.looks, key=lambda look: shown[look.name])
     if shown[best.name] <= shown[first]:
         return None
@@ -290,7 +290,7 @@ def add_gallery_looks(
     look keeps up with a kept preset is a question about every look: the one showing most may be the darker."""
     design = looks[0].design  # type: ignore[attr-defined]
     shown = _shown_by_look(design, values, labels, names, shown_for)
-    first = design.look_name or design.looks[0].name
+    first = design.chosen_look
     others = [look for look in design.looks if look.name != first]
     ranked = sorted(others, key=lambda look: shown[look.name], reverse=True)  # stable: gallery order among equals
     for look in ranked:
