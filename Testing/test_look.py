@@ -16,6 +16,7 @@ from IsoSimilarityTFLib.look import (
     default_look,
     dense_tail,
     detect_kind,
+    fog_apart,
     fringe_cores_apart,
     gradient_ramp_top,
     ramp_colors,
@@ -695,3 +696,30 @@ def test_a_dense_class_is_drawn_from_ivory_up_on_ct(kind):
         assert dense.colors[:3] == plain.colors[:3]  # the other classes keep the ramp's colour
     else:
         assert dense.colors == plain.colors  # one colour per tissue elsewhere
+
+
+# A fog tissue's other classes -----------------------------------------------------------------------------------------
+
+
+def test_fog_apart_splits_each_run_of_fog_and_keeps_intensity_order():
+    tissue_of = np.array([0, 1, 1, 1, 2, 2])
+    fog = np.array([False, True, True, False, False, False])
+    assert fog_apart(tissue_of, fog).tolist() == [0, 1, 1, 2, 3, 3]
+    assert fog_apart(tissue_of, np.zeros(6, dtype=bool)).tolist() == tissue_of.tolist()
+
+
+@pytest.mark.parametrize(
+    "kind, fog_of_class_2, shown", [("mr", False, True), ("mr", True, False), ("ct", False, False)]
+)
+def test_a_surface_shows_the_classes_above_the_fog_of_their_tissue(kind, fog_of_class_2, shown):
+    # Tissue 1: noise 1 width above the background (class 1, fog) and the dark outer cortex 6 widths above it
+    # (class 2, not fog: it does not touch the background), grouped by the model; its largest class is the fog, so
+    # as a whole it is fog. As its own tissue (not fog), class 2 is shown on a surface look, not on a CT's, which
+    # clears the soft tissue whole; as fog it stays hidden.
+    classes = make_classes([10_000, 3000, 1000, 5000])
+    means = np.array([0.0, 1.0, 6.0, 20.0])
+    tissue_of = np.array([0, 1, 1, 2])
+    fog = [False, True, fog_of_class_2, False]
+    look = default_look(classes, tissue_of, means, kind, class_bins=means, noise_sd=1.0, fog_classes=fog)
+    assert look.visible == [False, False, shown, True]
+    assert not default_look(classes, tissue_of, means, kind, class_bins=means, noise_sd=1.0).visible[2]

@@ -283,6 +283,7 @@ def _default(context: LookContext, kind: str) -> Made:
             colors=context.colors,
             max_classes=context.max_classes,
             dense_classes=context.of_role("dense"),
+            fog_classes=context.of_role("fog"),
             rules=context.rules,
         )
     look = context._defaults[key]

@@ -9,7 +9,10 @@ the same tissues, the same opacities and the same picture.
 1. **Which tissues are shown.** Not the background, not a tissue most of whose voxels touch it (noise in the air, the
    partial-volume rim) or whose largest class lies within :attr:`.LookRules.fog_separation` noise widths
    (:func:`.roles.noise_width`) above the background's (fog; its mean would follow its partial-volume tail down to the
-   background); of the others, whole tissues, the largest first, while they hold at most ``max_classes`` classes; the
+   background); where a fog tissue also holds classes that are not fog (role ``"fog"``, :mod:`.roles`), those are a
+   tissue of their own on the looks of data that are not CT-like (:func:`fog_apart`: the outer cortex of a
+   skull-stripped brain, grouped with the dark partial volume below it); of the others, whole tissues, the largest
+   first, while they hold at most ``max_classes`` classes; the
    densest real tissue always; and on data that are not CT-like, where a shown tissue fills the object (more than
    :attr:`.LookRules.fill_share` of the foreground's voxels; met first, it is the object's surface, see
    :meth:`_VisibilityStep.outer_surface`), every tissue lying between two shown ones, as every preset's ramp shows all
@@ -218,6 +221,7 @@ def default_look(
     colors: str = "ramp",
     max_classes: int = 15,
     dense_classes: Optional[Sequence[bool]] = None,
+    fog_classes: Optional[Sequence[bool]] = None,
     rules: LookRules = RULES,
 ) -> Look:
     """Colour, opacity and visibility of every class (see the module notes).
@@ -239,6 +243,9 @@ def default_look(
             fills the object on data that are not CT-like).
         dense_classes: ``(n_classes,)`` whether each class is dense (:func:`.roles.class_roles`); on CT their
             colours run from ivory (:data:`IVORY_PLACE`) up, by value among them. None: by the ramp alone.
+        fog_classes: ``(n_classes,)`` whether each class is fog (:func:`.roles.class_roles`); on data that are not
+            CT-like the other classes of their tissues are a tissue of their own (:func:`fog_apart`). None: whole
+            tissues.
         rules: the thresholds.
     """
     if kind not in KINDS:
@@ -251,6 +258,10 @@ def default_look(
     contact = np.array([c.background_contact for c in classes])
     is_background = np.array([c.background for c in classes])
     tissue_of_class = fringe_cores_apart(np.asarray(tissue_of_class), contact, voxels, is_background, rules)
+    if fog_classes is not None and kind != "ct":
+        # On CT the soft tissue is cleared around the dense tail whole; a surface must not lose the classes above
+        # the fog that the model grouped with it.
+        tissue_of_class = fog_apart(tissue_of_class, np.asarray(fog_classes, dtype=bool))
     n_tissues = int(tissue_of_class.max()) + 1 if tissue_of_class.size else 0
     tissue_voxels = np.bincount(tissue_of_class, weights=voxels, minlength=n_tissues)
     tissue_contact = np.bincount(tissue_of_class, weights=voxels * contact, minlength=n_tissues) / np.maximum(
@@ -421,6 +432,25 @@ def fringe_cores_apart(
             out[members] = next_id
             next_id += 1
     return out
+
+
+def fog_apart(tissue_of_class: np.ndarray, fog: np.ndarray) -> np.ndarray:
+    """``(n_classes,)`` the tissue of each class as a surface look decides it: the fog classes of a tissue and its
+    other classes are tissues of their own (each run of them), so the fog stays hidden while the rest is shown or
+    hidden by its own measurements, not by where the fog lies. The intensity model groups by similarity, and the
+    partial volume between the background and a tissue (the dark outer cortex of a skull-stripped brain, a flame's
+    faint envelope) falls into one tissue with the noise below it. Ids stay in intensity order.
+
+    Args:
+        tissue_of_class: ``(n_classes,)`` tissue per class (classes in intensity order, tissues runs of them).
+        fog: ``(n_classes,)`` whether each class is fog (:func:`.roles.class_roles`).
+    """
+    tissue_of_class = np.asarray(tissue_of_class)
+    fog = np.asarray(fog, dtype=bool)
+    if tissue_of_class.size == 0:
+        return tissue_of_class.copy()
+    starts = np.r_[True, (tissue_of_class[1:] != tissue_of_class[:-1]) | (fog[1:] != fog[:-1])]
+    return np.cumsum(starts) - 1
 
 
 def _follow_real(opacity: np.ndarray, shown: list[int], real: list[int]) -> np.ndarray:
