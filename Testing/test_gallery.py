@@ -346,12 +346,11 @@ def light_of(context, opacities, visible):
 
 @pytest.mark.parametrize(
     "kind, dense_share, seen, kept_binds",
-    [("ct", 0.3, 0.8, False), ("ct", 0.9, 0.8, False), ("ct", 0.5, 0.95, True), ("mr", 0.3, 0.95, True)],
+    [("ct", 0.3, 0.8, False), ("ct", 0.9, 0.8, False), ("ct", 0.5, 0.95, True)],
 )
 def test_the_dense_parts_look_clears_the_bulk_only_as_far_as_its_aims(kind, dense_share, seen, kept_binds):
-    """The bulk is made clearer until the dense parts give ``dense_share`` of the picture and keep ``seen`` of their
-    light, and no further: whichever aim binds lands within a few hundredths above it. On CT the look's features
-    keep ``seen`` already; on other data the clearing alone sees to it."""
+    """On CT-like data the bulk is made clearer until the dense parts give ``dense_share`` of the picture and keep
+    ``seen`` of their light, and no further: whichever aim binds lands within a few hundredths above it."""
     context = shell_context(dataclasses.replace(RULES, dense_share=dense_share, seen=seen), kind)
     look = make_look("dense-parts", context)
     dense = context.of_role("dense")
@@ -363,6 +362,23 @@ def test_the_dense_parts_look_clears_the_bulk_only_as_far_as_its_aims(kind, dens
         assert kept <= seen + 0.02
     else:
         assert share <= dense_share + 0.05
+
+
+@pytest.mark.parametrize("kind", ["ct", "mr"])
+def test_the_dense_parts_of_other_data_are_shown_alone(kind):
+    """The soft shell around the dense core: a faint veil on CT (CT-Bone's soft tissue), hidden on other data (a
+    FLAIR's lesion without the brain around it), where it keeps the outer surface's opacity for a user who shows it."""
+    context = shell_context(kind=kind)
+    look = make_look("dense-parts", context)
+    bulk = context.of_role("bulk")
+    assert np.asarray(look.visible)[context.of_role("dense")].all()
+    assert np.asarray(look.visible)[bulk].all() == (kind == "ct")
+    if kind == "ct":
+        assert 0 < float(look.class_shares[bulk].sum()) <= 1 - RULES.dense_share + 0.05
+    else:
+        surface = make_look("outer-surface", context)
+        assert np.asarray(look.opacities)[bulk] == pytest.approx(np.asarray(surface.opacities)[bulk])
+        assert float(look.class_shares[bulk].sum()) == 0.0 and check_look(context, look) == []
 
 
 @pytest.mark.parametrize("name", ["all-tissues", "classes"])

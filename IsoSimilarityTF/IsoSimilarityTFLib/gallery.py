@@ -10,7 +10,8 @@ name                what it shows                                            off
 =================== ======================================================== ======================================
 ``dense-parts``     the dense parts inside, the bulk around them cleared     a class is ``dense`` (always on CT)
                     until they give :attr:`.LookRules.dense_share` of
-                    the picture (bone of a CT, the parts of an engine)
+                    the picture (bone of a CT, the parts of an engine);
+                    on other data the dense parts alone (a FLAIR's lesion)
 ``outer-surface``   the tissue met first as a surface (the skin of a head,   always
                     a brain's cortex: MR-Default's look)
 ``see-through``     the dense parts look, with the bulk around them kept at   a class is ``dense`` and another
@@ -291,22 +292,25 @@ def _default(context: LookContext, kind: str) -> Made:
 
 
 def _dense_parts(context: LookContext) -> Made:
-    """The dense classes as surfaces, everything else shown made clearer until they keep ``rules.seen`` of their
-    light and give ``rules.dense_share`` of the picture. It starts from :func:`.look.default_look`'s dense tail on
-    CT-like data (the first click there), from the outer surface with the dense classes raised to the ramp's top on
-    other data (a bright lesion inside a FLAIR brain, the enhancing vessels of a contrast T1)."""
+    """The dense classes as surfaces. On CT-like data it starts from :func:`.look.default_look`'s dense tail (the
+    first click there), and everything else shown is made clearer until the dense classes keep ``rules.seen`` of
+    their light and give ``rules.dense_share`` of the picture: the soft tissue stays a faint veil around the bone, as
+    CT-Bone draws it. On other data the dense classes are shown alone, raised to the ramp's top (a bright lesion
+    inside a FLAIR brain, the enhancing vessels of a contrast T1): a structure of its own, as MR-Angio draws it, which
+    a veil of brain around it would only hide; the other classes keep their outer-surface opacities, hidden."""
     dense = context.of_role("dense")
-    if context.kind == "ct":
-        colors, opacities, visible = _default(context, "ct")
-    else:
-        colors, opacities, visible = _default(context, context.kind)
-        opacities = np.where(dense, np.maximum(opacities, context.rules.opacity_high), opacities)
+    if context.kind != "ct":
+        if not dense.any():
+            return None
+        colors, opacities, _ = _default(context, context.kind)
+        return colors, list(np.where(dense, np.maximum(opacities, context.rules.opacity_high), opacities)), list(dense)
+    colors, opacities, visible = _default(context, "ct")
     if context.preview is None or not dense.any():
-        return (colors, opacities, visible) if context.kind == "ct" else None
+        return colors, opacities, visible
     opacities = np.asarray(opacities, dtype=np.float64)
     cleared = _cleared_around(context, dense, opacities, visible, context.rules.dense_share, context.rules.seen)
     if cleared is None:  # the dense classes are not in the preview
-        return (colors, list(opacities), list(np.asarray(visible) | dense)) if context.kind == "ct" else None
+        return colors, list(opacities), list(np.asarray(visible) | dense)
     return (colors, *cleared)
 
 
