@@ -21,6 +21,7 @@ from IsoSimilarityTFLib.tissues import (
     fit_intensity_model,
     kmeans_1d,
     log_likelihood_bound,
+    value_step,
 )
 from isosimtf.phantom import head_phantom
 
@@ -45,6 +46,33 @@ def test_model_finds_three_separated_tissues():
     assert model.sd == pytest.approx(6.0, rel=0.15)
     posterior = model.tissue_posterior(np.array([60.0, 130.0, 200.0]))
     np.testing.assert_array_equal(posterior.argmax(axis=1), [0, 1, 2])
+
+
+def test_value_step_is_the_median_gap_between_the_values_held():
+    lattice = np.zeros(256)
+    lattice[::5] = 1.0
+    assert value_step(lattice) == 5.0
+    assert value_step(np.ones(256)) == 1.0
+    gappy_tail = np.zeros(256)
+    gappy_tail[[0, 1, 2, 3, 40, 90]] = 1.0  # a few values far out do not make a lattice
+    assert value_step(gappy_tail) == 1.0
+    assert value_step(np.eye(1, 256, 7).ravel()) == 1.0
+
+
+@pytest.mark.parametrize("sd_steps", [0.4, 0.6])
+def test_values_stored_in_coarse_steps_keep_their_tissues(sd_steps):
+    """HU clipped at 0 in 62.5-HU steps holds every fifth bin of 256 over its range: the same values on every fifth
+    bin give the tissues they give on every bin, scaled by the step, whether the tissues are narrower than half a
+    step (the floor binds: the fit on the lattice alone split them into 8 spikes) or wider."""
+    rng = np.random.default_rng(0)
+    values = np.concatenate([rng.normal(m, sd_steps, n) for m, n in zip([10, 14, 30], [20000, 50000, 30000])])
+    steps = np.clip(np.round(values), 0, 50).astype(int)
+    unit = choose_intensity_model(np.bincount(steps, minlength=51).astype(float))
+    lattice = choose_intensity_model(np.bincount(5 * steps, minlength=256).astype(float))
+    assert unit.n_tissues == lattice.n_tissues == 3
+    np.testing.assert_allclose(lattice.means, 5 * unit.means, atol=0.05)
+    assert lattice.sd == pytest.approx(5 * unit.sd, rel=0.02)
+    assert lattice.sd >= 0.5 * 5
 
 
 def test_partial_volume_ramp_is_not_a_tissue():

@@ -53,6 +53,8 @@ _MIXEL_FRACTIONS = (np.arange(8) + 0.5) / 8
 RELATIVE_GAIN = 0.5
 MAX_TISSUES = 8
 _EM_ITERATIONS = 200
+# The narrowest noise width, in steps between the values the histogram holds (a histogram cannot resolve less).
+_MIN_SD_STEPS = 0.5
 # EM stops when the log-likelihood per voxel improves by less than this (nats): far below any tissue's gain.
 _EM_TOLERANCE = 1e-6
 # Exponents below this give a density of exactly 0 in an EM step (see _em_step).
@@ -139,7 +141,7 @@ def _mixel_averaging(k: int) -> np.ndarray:
     return averaging
 
 
-def fit_intensity_model(counts: np.ndarray, means: np.ndarray, min_sd: float = 0.5) -> IntensityModel:
+def fit_intensity_model(counts: np.ndarray, means: np.ndarray, min_sd: float = _MIN_SD_STEPS) -> IntensityModel:
     """Expectation-maximization of the partial-volume model on a histogram, from initial means.
 
     Args:
@@ -223,7 +225,7 @@ def _em_step(
     return likelihood, means, variance, mass
 
 
-def log_likelihood_bound(counts: np.ndarray, min_sd: float = 0.5) -> float:
+def log_likelihood_bound(counts: np.ndarray, min_sd: float = _MIN_SD_STEPS) -> float:
     """The highest log-likelihood per voxel any model with noise widths of at least ``min_sd`` bins can reach.
 
     A Gaussian of width ``sd >= min_sd`` sums over the integer bins to at most ``Z = sum_m exp(-2 pi^2 sd^2 m^2)``
@@ -252,7 +254,8 @@ def choose_intensity_model(
 
     Each fit starts from two places and keeps the likelier: the optimal 1-D k-means of the histogram (exact, so the
     start never depends on luck) and the previous fit plus a tissue where that fit explains the histogram worst
-    (greedy mixture learning).
+    (greedy mixture learning). No noise width is narrower than half the step between the values the histogram
+    holds (:func:`value_step`).
 
     Args:
         counts: ``(n_bins,)`` voxels per bin, background zeroed; at least one non-zero bin.
@@ -262,7 +265,8 @@ def choose_intensity_model(
     counts = np.asarray(counts, dtype=np.float64)
     x_all = np.arange(counts.size, dtype=np.float64)
     share = counts / counts.sum()
-    bound = log_likelihood_bound(counts)
+    min_sd = _MIN_SD_STEPS * value_step(counts)
+    bound = log_likelihood_bound(counts, min_sd)
     models: list[IntensityModel] = []
     gains: list[float] = []
     best = -np.inf  # the likeliest fit so far
@@ -271,7 +275,8 @@ def choose_intensity_model(
         if models:
             residual = share - models[-1].densities(x_all).sum(axis=1)
             starts.append(np.append(models[-1].means, float(np.argmax(residual))))
-        models.append(max((fit_intensity_model(counts, start) for start in starts), key=lambda m: m.log_likelihood))
+        fits = (fit_intensity_model(counts, start, min_sd) for start in starts)
+        models.append(max(fits, key=lambda m: m.log_likelihood))
         if k > 1:
             gains.append(models[-1].log_likelihood - best)
         best = max(best, models[-1].log_likelihood)
@@ -280,6 +285,19 @@ def choose_intensity_model(
     if not gains or max(gains) <= 0:
         return models[0]
     return models[int(np.flatnonzero(np.array(gains) >= relative_gain * max(gains)).max()) + 1]
+
+
+def value_step(counts: np.ndarray) -> float:
+    """The step, in bins, between the values a histogram holds: the median gap between its non-empty bins, at
+    least 1. Data stored in coarse steps (HU clipped at 0 in 62.5-HU steps: every fifth bin of 256 over 0..3343 HU)
+    leave the bins between their values empty; a tissue narrower than the step is a spike of the storage, not of the
+    scan, and a model fitted to such spikes splits one tissue into several.
+
+    Args:
+        counts: ``(n_bins,)`` voxels per bin.
+    """
+    gaps = np.diff(np.flatnonzero(np.asarray(counts)))
+    return max(float(np.median(gaps)), 1.0) if gaps.size else 1.0
 
 
 def kmeans_1d(x: np.ndarray, weights: np.ndarray, k: int) -> np.ndarray:
