@@ -364,6 +364,30 @@ def test_the_dense_parts_look_clears_the_bulk_only_as_far_as_its_aims(kind, dens
         assert share <= dense_share + 0.05
 
 
+@pytest.mark.parametrize("seen", [0.9, 0.95])
+def test_on_ct_the_clearing_keeps_the_light_of_dense_classes_the_default_look_leaves_faint(seen):
+    """A dense class grouped with the bulk (a plume's fringe, a specimen's tube: the default look draws its tissue
+    faint, so its visibility step does not see to its light) is kept at ``seen`` of its light by the clearing of the
+    shell in front of it, and no further."""
+    n = 40
+    z, y, x = np.indices((n, n, n)) - (n - 1) / 2
+    r = np.sqrt(x**2 + y**2 + z**2)
+    bins = np.select([r < 4, r < 8, r < 17], [37, 30, 15], 0).astype(np.intp)
+    labels = np.select([np.arange(40) < 5, np.arange(40) < 22, np.arange(40) < 34], [0, 1, 2], 3)
+    class_bins = np.array([0.0, 15.0, 30.0, 37.0])
+    context = LookContext.build(
+        classes=make_classes(np.bincount(labels[bins.ravel()], minlength=4).tolist()),
+        tissue_of_class=np.array([0, 1, 1, 2]), class_values=class_bins, class_bins=class_bins, labels=labels,
+        noise_sd=1.0, preview=Preview(bins, (5.0, 5.0, 5.0), 40), kind="ct",
+        rules=dataclasses.replace(RULES, dense_share=0.3, seen=seen),
+    )  # fmt: skip
+    assert context.roles == ["background", "bulk", "dense", "dense"]
+    look = make_look("dense-parts", context)
+    dense, opacities, visible = context.of_role("dense"), np.asarray(look.opacities), np.asarray(look.visible)
+    kept = light_of(context, opacities, visible)[dense].sum() / light_of(context, opacities, dense)[dense].sum()
+    assert seen <= kept <= seen + 0.02
+
+
 @pytest.mark.parametrize("kind", ["ct", "mr"])
 def test_the_dense_parts_of_other_data_are_shown_alone(kind):
     """The soft shell around the dense core: a faint veil on CT (CT-Bone's soft tissue), hidden on other data (a
