@@ -299,9 +299,10 @@ def shell_context(rules=RULES, kind="ct"):
     )  # fmt: skip
 
 
-def lesion_context(kind, rules=RULES):
+def lesion_context(kind, rules=RULES, tissue_of_class=(0, 1, 2, 3)):
     """Air (bin 0), a brain (bin 15, bulk) around a bright lesion (bin 30) with a brighter centre (bin 37): both
-    dense, three tissues on the ramp, so the lesion starts below its top."""
+    dense, three tissues on the ramp, so the lesion starts below its top (or, grouped with the brain by
+    ``tissue_of_class``, drawn faint with it)."""
     n = 40
     z, y, x = np.indices((n, n, n)) - (n - 1) / 2
     r = np.sqrt(x**2 + y**2 + z**2)
@@ -310,7 +311,7 @@ def lesion_context(kind, rules=RULES):
     voxels = np.bincount(labels[bins.ravel()], minlength=4)
     class_bins = np.array([0.0, 15.0, 30.0, 37.0])
     return LookContext.build(
-        classes=make_classes(voxels.tolist()), tissue_of_class=np.arange(4), class_values=class_bins,
+        classes=make_classes(voxels.tolist()), tissue_of_class=np.array(tissue_of_class), class_values=class_bins,
         class_bins=class_bins, labels=labels, noise_sd=1.0, preview=Preview(bins, (5.0, 5.0, 5.0), 40), kind=kind,
         rules=rules,
     )  # fmt: skip
@@ -369,18 +370,8 @@ def test_on_ct_the_clearing_keeps_the_light_of_dense_classes_the_default_look_le
     """A dense class grouped with the bulk (a plume's fringe, a specimen's tube: the default look draws its tissue
     faint, so its visibility step does not see to its light) is kept at ``seen`` of its light by the clearing of the
     shell in front of it, and no further."""
-    n = 40
-    z, y, x = np.indices((n, n, n)) - (n - 1) / 2
-    r = np.sqrt(x**2 + y**2 + z**2)
-    bins = np.select([r < 4, r < 8, r < 17], [37, 30, 15], 0).astype(np.intp)
-    labels = np.select([np.arange(40) < 5, np.arange(40) < 22, np.arange(40) < 34], [0, 1, 2], 3)
-    class_bins = np.array([0.0, 15.0, 30.0, 37.0])
-    context = LookContext.build(
-        classes=make_classes(np.bincount(labels[bins.ravel()], minlength=4).tolist()),
-        tissue_of_class=np.array([0, 1, 1, 2]), class_values=class_bins, class_bins=class_bins, labels=labels,
-        noise_sd=1.0, preview=Preview(bins, (5.0, 5.0, 5.0), 40), kind="ct",
-        rules=dataclasses.replace(RULES, dense_share=0.3, seen=seen),
-    )  # fmt: skip
+    rules = dataclasses.replace(RULES, dense_share=0.3, seen=seen)
+    context = lesion_context("ct", rules, tissue_of_class=(0, 1, 1, 2))
     assert context.roles == ["background", "bulk", "dense", "dense"]
     look = make_look("dense-parts", context)
     dense, opacities, visible = context.of_role("dense"), np.asarray(look.opacities), np.asarray(look.visible)
