@@ -20,7 +20,7 @@ from IsoSimilarityTFLib.gallery import (
     make_look,
 )
 from IsoSimilarityTFLib.look import SHOWN_PLACE, bin_opacity_of, ramp_colors
-from IsoSimilarityTFLib.roles import RULES, class_roles, dense_classes, noise_width
+from IsoSimilarityTFLib.roles import RULES, class_roles, dense_classes, fog_width, is_constant_background, noise_width
 from IsoSimilarityTFLib.visibility import Preview, visibility_histogram
 from isosimtf.phantom import head_phantom
 
@@ -131,6 +131,79 @@ def test_the_noise_width_is_the_models_on_ct_and_the_smaller_voxel_noise_on_othe
     assert noise_width("mr", 20.0, 30.0) == 20.0  # never wider than the model's
     assert noise_width("mr", 20.0, 0.0) == 0.5  # data stored in coarse steps: a histogram resolves no less
     assert noise_width("mr", 20.0, None) == 20.0  # a design saved before the voxels' noise was measured
+
+
+def test_a_tissue_is_at_the_background_in_the_voxels_noise_on_ct_whose_background_is_one_value():
+    assert fog_width("ct", 20.0, 8.0, constant_background=False) == 20.0  # noisy air: the model's width
+    assert fog_width("ct", 20.0, 8.0, constant_background=True) == 8.0  # one stored value: no noise of its own
+    assert fog_width("mr", 20.0, 8.0, constant_background=False) == 8.0
+    assert fog_width("ct", 20.0, None, constant_background=True) == 20.0  # a design saved before it was measured
+
+
+@pytest.mark.parametrize("gap, role", [(RULES.fog_separation - 0.01, "fog"), (RULES.fog_separation + 0.01, "bulk")])
+def test_a_tissue_at_the_background_is_fog_within_the_fog_width(gap, role):
+    # The model's width is 4 bins, the fog width 1: a class `gap` bins up, the largest of its tissue, not touching
+    # the background, is fog within 4 fog widths, whatever the model's width says.
+    classes = make_classes([50_000, 3000, 3000], contact=[1.0, 0.0, 0.0])
+    roles = class_roles(classes, np.array([0, 1, 2]), np.array([0.0, gap, 100.0]), 4.0, fog_sd=1.0)
+    assert roles[1] == role
+
+
+@pytest.mark.parametrize(
+    "gap, role", [(RULES.fog_separation * 4.0 - 0.01, "fog"), (RULES.fog_separation * 4.0 + 0.01, "rim")]
+)
+def test_noise_scattered_in_the_background_is_fog_within_the_noise_width(gap, role):
+    # A zeroed MRI's leftover noise touches the zeros: fog within 4 of the data's widths (4 bins), not the fog width.
+    classes = make_classes([50_000, 3000, 3000], contact=[1.0, 0.9, 0.0])
+    roles = class_roles(classes, np.array([0, 1, 2]), np.array([0.0, gap, 100.0]), 4.0, fog_sd=1.0)
+    assert roles[1] == role
+
+
+@pytest.mark.parametrize("neighbour, constant", [(0.134, True), (0.136, False)])
+def test_a_background_is_one_value_when_its_nearest_bins_hold_less_than_half_a_bins_noise_puts_there(
+    neighbour, constant
+):
+    assert RULES.constant_background == pytest.approx(np.exp(-2.0))  # 0.1353: noise of half a bin
+    counts = np.zeros(64, dtype=np.int64)
+    counts[10], counts[40:50] = 100_000, 500
+    for side in (9, 11):
+        near = counts.copy()
+        near[side] = round(neighbour * 100_000)
+        assert is_constant_background(near, np.arange(8, 13)) is constant
+    # data stored in steps of 3 bins: the nearest non-empty bins are compared, not the empty ones between
+    lattice = counts.copy()
+    lattice[13] = round(neighbour * 100_000)
+    assert is_constant_background(lattice, np.arange(8, 13)) is constant
+    # air at the bottom of the range: one side only
+    bottom = np.zeros(64, dtype=np.int64)
+    bottom[0], bottom[1], bottom[40:50] = 100_000, round(neighbour * 100_000), 500
+    assert is_constant_background(bottom, np.arange(0, 3)) is constant
+
+
+def _flame(noisy_air: bool) -> np.ndarray:
+    """A smooth field fading from 255 in its core into empty space (values under 8 set to 0, as a simulation's
+    cut-off), declared CT; with ``noisy_air`` the empty space holds noise around 6 instead."""
+    k, j, i = np.indices((48, 64, 64))
+    values = 255.0 * np.exp(-2.5 * (((k - 24) / 14.0) ** 2 + ((j - 32) / 20.0) ** 2 + ((i - 32) / 20.0) ** 2))
+    values[values < 8] = 0.0
+    if noisy_air:
+        air = values == 0
+        values[air] = np.random.default_rng(0).normal(6.0, 2.0, int(air.sum()))
+    return np.clip(np.rint(values), 0, 255).astype(np.uint8)
+
+
+def test_the_faint_edge_of_a_field_in_empty_space_is_not_fog_and_noisy_air_still_is():
+    faint = {}
+    for noisy_air in (False, True):
+        design = design_transfer_function(_flame(noisy_air), 1.0, modality="ct")
+        context = design.look_context()
+        assert design.kind == "ct" and design.constant_background is not noisy_air
+        # classes 8..40 values up, beyond 4 voxel-noise widths of the background, within 4 of the model's
+        band = [c.id for c in design.classes if 4 * context.voxel_noise_sd < context.class_bins[c.id] < 40]
+        assert band and max(context.class_bins[band]) < RULES.fog_separation * context.noise_sd
+        faint[noisy_air] = [context.roles[c] for c in band]
+    assert "fog" not in faint[False]
+    assert "fog" in faint[True]
 
 
 def _noisy_planes(sd, shape=(8, 256, 256), seed=0):

@@ -20,6 +20,7 @@ from .look import bin_opacity_of, class_mean_values, detect_kind, gradient_ramp_
 from .memory import check_memory
 from .options import DEFAULT_OPTIONS, KINDS, LOOK_NAMES, OPTIONS, check_options
 from .quantize import Quantization, bin_volume, bins_dtype, checked_n_bins, resolved_value_range
+from .roles import is_constant_background
 from .similarity import isovalue_similarity
 from .source import VolumeSource
 from .survey import checked_data_range, survey_volume
@@ -299,12 +300,19 @@ class TransferFunctionDesign:
                 labels=self.labels,
                 noise_sd=self.hierarchy.noise_sd,
                 voxel_noise_sd=self.voxel_noise_sd,
+                constant_background=self.constant_background,
                 preview=self.preview,
                 kind=self.kind,
                 colors=self.options.get("colors", DEFAULT_OPTIONS["colors"]),
                 max_classes=self.options.get("max_classes", DEFAULT_OPTIONS["max_classes"]),
             )
         return self._context
+
+    @property
+    def constant_background(self) -> bool:
+        """Whether the background is one stored value, without noise (:func:`.roles.is_constant_background`)."""
+        background = self.background_class
+        return background is not None and is_constant_background(self.bin_voxels, background.isovalue_bins)
 
     @property
     def looks(self) -> list[GalleryLook]:

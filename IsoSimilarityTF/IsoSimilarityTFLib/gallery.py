@@ -40,7 +40,7 @@ import numpy as np
 from .classes import PALETTE, IsovalueClass
 from .look import BACKGROUND_GREY, bin_opacity_of, default_look
 from .options import LOOK_NAMES
-from .roles import RULES, LookRules, class_roles, noise_width, tissue_mean_bins
+from .roles import RULES, LookRules, class_roles, fog_width, noise_width, tissue_mean_bins
 from .thumbnails import ray_visibility  # check_look's independent ray caster: an oracle, not the fast path
 from .visibility import Preview, visibility_histogram
 
@@ -72,6 +72,7 @@ class LookContext:
         voxel_noise_sd: the voxels' noise in bins (:func:`.classes.voxel_noise_sd`), or None (not measured: a design
             saved before it was): with ``noise_sd`` and ``kind``, the width the roles count in
             (:func:`.roles.noise_width`).
+        constant_background: whether the background is one stored value (see :func:`.roles.fog_width`).
     """
 
     classes: Sequence[IsovalueClass]
@@ -87,6 +88,7 @@ class LookContext:
     roles: list[str] = field(default_factory=list)
     rules: LookRules = RULES
     voxel_noise_sd: Optional[float] = None
+    constant_background: bool = False
     # The default looks made so far, by kind ("ct" or not): several looks start from the same one.
     _defaults: dict = field(default_factory=dict, repr=False, compare=False)
     # The light per class of every transfer function rendered so far, by its bin opacities: a look's last step and
@@ -98,8 +100,15 @@ class LookContext:
     @classmethod
     def build(cls, *, rules: LookRules = RULES, **inputs) -> "LookContext":
         """The context with the roles decided (:func:`.roles.class_roles`)."""
-        width = noise_width(inputs["kind"], inputs["noise_sd"], inputs.get("voxel_noise_sd"))
-        roles = class_roles(inputs["classes"], inputs["tissue_of_class"], inputs["class_bins"], width, rules)
+        kind, noise_sd, voxel_noise_sd = inputs["kind"], inputs["noise_sd"], inputs.get("voxel_noise_sd")
+        roles = class_roles(
+            inputs["classes"],
+            inputs["tissue_of_class"],
+            inputs["class_bins"],
+            noise_width(kind, noise_sd, voxel_noise_sd),
+            rules,
+            fog_sd=fog_width(kind, noise_sd, voxel_noise_sd, inputs.get("constant_background", False)),
+        )
         return cls(**inputs, roles=roles, rules=rules)
 
     def of_role(self, *roles: str) -> np.ndarray:
@@ -109,6 +118,11 @@ class LookContext:
     @property
     def n_tissues(self) -> int:
         return int(self.tissue_of_class.max()) + 1 if self.tissue_of_class.size else 0
+
+    @property
+    def fog_sd(self) -> float:
+        """The width, in bins, fog is decided in (:func:`.roles.fog_width`)."""
+        return fog_width(self.kind, self.noise_sd, self.voxel_noise_sd, self.constant_background)
 
 
 @dataclass(frozen=True)
@@ -279,7 +293,7 @@ def _default(context: LookContext, kind: str) -> Made:
             labels=context.labels,
             class_bins=context.class_bins,
             noise_sd=context.noise_sd,
-            fog_sd=noise_width(context.kind, context.noise_sd, context.voxel_noise_sd),
+            fog_sd=context.fog_sd,
             preview=context.preview,
             colors=context.colors,
             max_classes=context.max_classes,

@@ -8,7 +8,7 @@ the same tissues, the same opacities and the same picture.
 
 1. **Which tissues are shown.** Not the background, not a tissue most of whose voxels touch it (noise in the air, the
    partial-volume rim) or whose largest class lies within :attr:`.LookRules.fog_separation` noise widths
-   (:func:`.roles.noise_width`) above the background's (fog; its mean would follow its partial-volume tail down to the
+   (:func:`.roles.fog_width`) above the background's (fog; its mean would follow its partial-volume tail down to the
    background); where a fog tissue also holds classes that are not fog (role ``"fog"``, :mod:`.roles`), those are a
    tissue of their own on the looks of data that are not CT-like (:func:`fog_apart`: the outer cortex of a
    skull-stripped brain, grouped with the dark partial volume below it); of the others, whole tissues, the largest
@@ -234,7 +234,7 @@ def default_look(
         labels: ``(n_bins,)`` class id per bin; needed with ``preview``.
         class_bins: ``(n_classes,)`` mean bin of each class (default: ``class_values``, when they are bins).
         noise_sd: the intensity model's noise width, in bins.
-        fog_sd: the noise width fog is decided in, in bins: the data's (:func:`.roles.noise_width`; ``noise_sd`` if
+        fog_sd: the noise width fog is decided in, in bins: the data's (:func:`.roles.fog_width`; ``noise_sd`` if
             None). A look of another kind than the data's (the outer surface of a CT) keeps the data's.
         preview: the low-resolution volume the visibility step renders (None: the monotone start only).
         colors: ``"ramp"`` (one ramp colour per tissue) or ``"distinct"`` (one palette colour per tissue, by size).

@@ -11,7 +11,10 @@ Roles, in the order they are decided (the first that applies):
   largest class of its tissue (the tissue *is* at the background's intensity: noisy air, haze), or most of its voxels
   touch the background (:attr:`LookRules.rim_contact`: noise scattered in the air). A low class of a tissue whose
   largest class stands apart from the background, which does not touch it, is that tissue's darker part or partial
-  volume (the outer cortex of a skull-stripped brain), not noise. No look shows fog.
+  volume (the outer cortex of a skull-stripped brain), not noise. Whether a tissue lies at the background's
+  intensity is counted in the background's noise (:func:`fog_width`): a background of one stored value has none, and
+  the tissue next to it is then measured by the voxels' noise (a flame's faint envelope around its empty space). No
+  look shows fog.
 - ``"dense"``: a class whose mean lies :attr:`LookRules.dense_separation` noise widths above the *main material*,
   in a real tissue: bone or contrast in soft tissue, the parts inside a housing, the core of a vessel, a bright
   lesion (widths of the intensity model on CT-like data, of the voxels' noise where smaller on other data: see
@@ -88,6 +91,9 @@ class LookRules:
         thin_opacity: opacity per unit distance of the lowest rim class in the *thin structures* look: a structure
             one voxel thick (a voxel is about one unit distance, see :attr:`.visibility.Preview.unit_distance`)
             must stop half the light to be seen at all.
+        constant_background: the background is one stored value, without noise (:func:`is_constant_background`),
+            when the nearest non-empty bin on either side of its fullest bin holds less than this share of it: noise
+            of half a bin, the least a histogram resolves, puts exp(-2) there.
         opacity_low, opacity_high: opacity per unit distance of the lowest and densest shown tissue on the
             presets' monotone ramp (a haze half the light passes through over 35 units; a surface within 2-3).
     """
@@ -107,6 +113,7 @@ class LookRules:
     thin_foreground: float = 0.05
     thin_share: float = 0.5
     thin_opacity: float = 0.5
+    constant_background: float = float(np.exp(-2.0))
     opacity_low: float = 0.02
     opacity_high: float = 0.5
 
@@ -128,12 +135,44 @@ def noise_width(kind: str, noise_sd: float, voxel_noise_sd: Optional[float]) -> 
     return min(noise_sd, max(voxel_noise_sd, 0.5))
 
 
+def fog_width(kind: str, noise_sd: float, voxel_noise_sd: Optional[float], constant_background: bool) -> float:
+    """The noise width, in bins, in which a tissue lies at the background's intensity (the fog rule's tissue clause,
+    :attr:`LookRules.fog_separation`): the background's noise, which :func:`noise_width` gives, except on CT-like data
+    whose background is one stored value (``constant_background``, :func:`is_constant_background`: air set to 0 by an
+    export, a clip or a mask; a simulation's empty space). That background has no noise, and the intensity model's
+    width of the tissue next to it is the tissue's own spread of values (a flame's envelope fading into empty space),
+    not noise: the voxels' noise measures it, as on other data. Noise scattered in the air (a class touching the
+    background) is still judged in :func:`noise_width`: a zeroed MRI's leftover noise is that."""
+    return noise_width("mr" if constant_background else kind, noise_sd, voxel_noise_sd)
+
+
+def is_constant_background(bin_voxels: np.ndarray, background_bins: np.ndarray, rules: LookRules = RULES) -> bool:
+    """Whether the background is one stored value (air set to 0 by an export, a clip or a mask; a simulation's empty
+    space) rather than noise around one (:attr:`LookRules.constant_background`). Its class may also hold the lowest
+    values of the object next to it, a thin tail; the nearest non-empty bins are compared, since data stored in
+    coarser steps than the bins leave bins between them empty.
+
+    Args:
+        bin_voxels: ``(n_bins,)`` voxels per bin. background_bins: the background class's bins.
+    """
+    counts = np.asarray(bin_voxels)
+    background_bins = np.asarray(background_bins, dtype=np.intp)
+    if background_bins.size == 0 or counts[background_bins].max() <= 0:
+        return False
+    fullest = int(background_bins[np.argmax(counts[background_bins])])
+    filled = np.flatnonzero(counts)
+    below, above = filled[filled < fullest], filled[filled > fullest]
+    nearest = np.concatenate((below[-1:], above[:1]))
+    return bool(np.all(counts[nearest] < rules.constant_background * counts[fullest]))
+
+
 def class_roles(
     classes: Sequence[IsovalueClass],
     tissue_of_class: np.ndarray,
     class_bins: np.ndarray,
     noise_sd: float,
     rules: LookRules = RULES,
+    fog_sd: Optional[float] = None,
 ) -> list[str]:
     """The role of every class (see the module notes).
 
@@ -143,6 +182,8 @@ def class_roles(
         class_bins: ``(n_classes,)`` voxel-weighted mean bin of each class.
         noise_sd: the noise width the rules count in, in bins (:func:`noise_width`).
         rules: the thresholds.
+        fog_sd: the noise width in which a tissue lies at the background's intensity, in bins (:func:`fog_width`;
+            ``noise_sd`` if None); a class touching the background is fog within ``noise_sd`` of it.
 
     Returns:
         One of :data:`ROLES` per class.
@@ -153,13 +194,17 @@ def class_roles(
     background_bin = class_bins[background] if background is not None else -np.inf
     dense = set(dense_classes(classes, tissue_of_class, class_bins, noise_sd, rules))
     voxels = np.array([c.voxels for c in classes], dtype=np.float64)
-    near = np.abs(class_bins - background_bin) < rules.fog_separation * noise_sd
+    distance = np.abs(class_bins - background_bin)
+    near = distance < rules.fog_separation * noise_sd
+    at_background = distance < rules.fog_separation * (noise_sd if fog_sd is None else fog_sd)
     roles = []
     for c in classes:
-        tissue_near = near[largest_class(tissue_of_class, voxels, tissue_of_class[c.id])]
+        tissue_at_background = at_background[largest_class(tissue_of_class, voxels, tissue_of_class[c.id])]
         if c.background:
             roles.append("background")
-        elif near[c.id] and (tissue_near or c.background_contact > rules.rim_contact):
+        elif (at_background[c.id] and tissue_at_background) or (
+            near[c.id] and c.background_contact > rules.rim_contact
+        ):
             roles.append("fog")
         elif c.id in dense:
             roles.append("dense")
