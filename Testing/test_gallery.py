@@ -14,6 +14,7 @@ from IsoSimilarityTFLib.gallery import (
     GalleryLook,
     LookContext,
     _bracketed_search,
+    _default,
     broken_shares,
     check_look,
     class_shares,
@@ -450,6 +451,41 @@ def test_on_ct_the_clearing_keeps_the_light_of_dense_classes_the_default_look_le
     dense, opacities, visible = context.of_role("dense"), np.asarray(look.opacities), np.asarray(look.visible)
     kept = light_of(context, opacities, visible)[dense].sum() / light_of(context, opacities, dense)[dense].sum()
     assert seen <= kept <= seen + 0.02
+
+
+def fringe_context(rules=RULES):
+    """A plume in empty space: a core (bin 37, a tissue of its own) inside fringe layers (bins 30 and 24, dense)
+    that the intensity model grouped with the faint haze around them (bin 3, the tissue's largest class: fog), so the
+    default look hides them with it."""
+    n = 40
+    z, y, x = np.indices((n, n, n)) - (n - 1) / 2
+    r = np.sqrt(x**2 + y**2 + z**2)
+    bins = np.select([r < 4, r < 5, r < 6, r < 17], [37, 30, 24, 3], 0).astype(np.intp)
+    labels = np.select([np.arange(40) < 2, np.arange(40) < 14, np.arange(40) < 27, np.arange(40) < 34], [0, 1, 2, 3], 4)
+    voxels = np.bincount(labels[bins.ravel()], minlength=5)
+    class_bins = np.array([0.0, 3.0, 24.0, 30.0, 37.0])
+    return LookContext.build(
+        classes=make_classes(voxels.tolist()), tissue_of_class=np.array([0, 1, 1, 1, 2]), class_values=class_bins,
+        class_bins=class_bins, labels=labels, noise_sd=1.0, preview=Preview(bins, (5.0, 5.0, 5.0), 40), kind="ct",
+        rules=rules,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("opacity_low", [0.01, RULES.opacity_low])
+def test_on_ct_the_dense_classes_the_default_hides_rise_from_the_ramps_start_to_the_tails(opacity_low):
+    """A plume's fringe: hidden with the haze by the default look, the dense-parts look draws its dense classes on
+    the presets' ramp, from ``opacity_low`` at the lowest up towards the core's opacity by mean bin, a shell that
+    thickens the core rather than a faint halo around it."""
+    context = fringe_context(dataclasses.replace(RULES, opacity_low=opacity_low))
+    assert context.roles == ["background", "fog", "dense", "dense", "dense"]
+    _, _, visible = _default(context, "ct")
+    assert visible[1:] == [False, False, False, True]
+    look = make_look("dense-parts", context)
+    assert all(look.visible[2:])
+    core = look.opacities[4]
+    assert look.opacities[2] == pytest.approx(opacity_low)
+    assert look.opacities[3] == pytest.approx(opacity_low + (core - opacity_low) * (30 - 24) / (37 - 24))
+    assert opacity_low < look.opacities[3] < core
 
 
 @pytest.mark.parametrize("kind", ["ct", "mr"])

@@ -307,8 +307,9 @@ def _default(context: LookContext, kind: str) -> Made:
 
 def _dense_parts(context: LookContext) -> Made:
     """The dense classes as surfaces. On CT-like data it starts from :func:`.look.default_look`'s dense tail (the
-    first click there), and everything else shown is made clearer until the dense classes keep ``rules.seen`` of
-    their light and give ``rules.dense_share`` of the picture: the soft tissue stays a faint veil around the bone, as
+    first click there), with the dense classes the default hides below it on the ramp up to it (:func:`_dense_ramp`),
+    and everything else shown is made clearer until the dense classes keep ``rules.seen`` of their light and give
+    ``rules.dense_share`` of the picture: the soft tissue stays a faint veil around the bone, as
     CT-Bone draws it. On other data the dense classes are shown alone, raised to the ramp's top (a bright lesion
     inside a FLAIR brain, the enhancing vessels of a contrast T1): a structure of its own, as MR-Angio draws it, which
     a veil of brain around it would only hide; the other classes keep their outer-surface opacities, hidden."""
@@ -321,11 +322,31 @@ def _dense_parts(context: LookContext) -> Made:
     colors, opacities, visible = _default(context, "ct")
     if context.preview is None or not dense.any():
         return colors, opacities, visible
-    opacities = np.asarray(opacities, dtype=np.float64)
+    opacities = _dense_ramp(context, np.asarray(opacities, dtype=np.float64), np.asarray(visible, dtype=bool))
     cleared = _cleared_around(context, dense, opacities, visible, context.rules.dense_share, context.rules.seen)
     if cleared is None:  # the dense classes are not in the preview
         return colors, list(opacities), list(np.asarray(visible) | dense)
     return (colors, *cleared)
+
+
+def _dense_ramp(context: LookContext, opacities: np.ndarray, visible: np.ndarray) -> np.ndarray:
+    """``(n_classes,)`` opacities with the dense classes the default look hides (grouped with the fog or the rim
+    below the dense tail: a plume's fringe, a bone's partial volume) on the presets' monotone ramp: from
+    :attr:`.LookRules.opacity_low` at the lowest of them up to the opacity of the lowest dense class shown (the
+    tail's start), by mean bin. A shell that thickens the dense parts as it nears their value, not a halo at the
+    opacity a user who shows their tissue starts from."""
+    dense = context.of_role("dense")
+    hidden, shown = dense & ~visible, dense & visible
+    if not hidden.any() or not shown.any():
+        return opacities
+    bins = np.asarray(context.class_bins, dtype=np.float64)
+    start = int(np.flatnonzero(shown)[np.argmin(bins[shown])])
+    low, high = bins[hidden].min(), bins[start]
+    if high <= low:
+        return opacities
+    place = np.clip((bins - low) / (high - low), 0.0, 1.0)
+    ramp = context.rules.opacity_low + (opacities[start] - context.rules.opacity_low) * place
+    return np.where(hidden & (bins < high), ramp, opacities)
 
 
 def _cleared_around(
