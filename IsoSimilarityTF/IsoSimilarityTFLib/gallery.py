@@ -10,8 +10,10 @@ name                what it shows                                            off
 =================== ======================================================== ======================================
 ``dense-parts``     the dense parts inside, the bulk around them cleared     a class is ``dense`` (always on CT)
                     until they give :attr:`.LookRules.dense_share` of
-                    the picture (bone of a CT, the parts of an engine);
-                    on other data the dense parts alone (a FLAIR's lesion)
+                    the picture (bone of a CT, the parts of an engine;
+                    those the default hides on the ramp up to the rest:
+                    a plume's fringe); on other data the dense parts
+                    alone (a FLAIR's lesion)
 ``outer-surface``   the tissue met first as a surface (the skin of a head,   always
                     a brain's cortex: MR-Default's look)
 ``see-through``     the dense parts look, with the bulk around them kept at   a class is ``dense`` and another
