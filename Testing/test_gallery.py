@@ -181,6 +181,13 @@ def test_a_background_is_one_value_when_its_nearest_bins_hold_less_than_half_a_b
     assert is_constant_background(bottom, np.arange(0, 3)) is constant
 
 
+def test_no_background_or_an_empty_one_is_not_a_constant_background():
+    counts = np.zeros(64, dtype=np.int64)
+    counts[40:50] = 500
+    assert not is_constant_background(counts, np.arange(0, 0))  # the option background=none: no class
+    assert not is_constant_background(counts, np.arange(0, 5))  # a background class holding no voxels
+
+
 def _flame(noisy_air: bool) -> np.ndarray:
     """A smooth field fading from 255 in its core into empty space (values under 8 set to 0, as a simulation's
     cut-off), declared CT; with ``noisy_air`` the empty space holds noise around 6 instead."""
