@@ -15,6 +15,7 @@ from IsoSimilarityTFLib.gallery import (
     LookContext,
     _bracketed_search,
     _default,
+    _dense_ramp,
     broken_shares,
     check_look,
     class_shares,
@@ -160,25 +161,39 @@ def test_noise_scattered_in_the_background_is_fog_within_the_noise_width(gap, ro
     assert roles[1] == role
 
 
-@pytest.mark.parametrize("neighbour, constant", [(0.134, True), (0.136, False)])
-def test_a_background_is_one_value_when_its_nearest_bins_hold_less_than_half_a_bins_noise_puts_there(
-    neighbour, constant
+def test_a_constant_backgrounds_threshold_is_what_noise_of_half_a_bin_puts_beside_its_fullest_bin():
+    # Gaussian noise of 0.5 bin: the bin beside the fullest holds P(0.5 < x < 1.5) / P(|x| < 0.5) of it
+    rng = np.random.default_rng(0)
+    counts = np.bincount(np.rint(np.abs(rng.normal(0.0, 0.5, 4_000_000))).astype(int))
+    assert counts[1] / 2 / counts[0] == pytest.approx(RULES.constant_neighbour_share, rel=0.01)
+
+
+@pytest.mark.parametrize("margin, constant", [(-0.001, True), (0.001, False)])
+def test_a_background_is_one_value_when_the_bins_beside_it_hold_less_than_half_a_bins_noise_puts_there(
+    margin, constant
 ):
-    assert RULES.constant_background == pytest.approx(np.exp(-2.0))  # 0.1353: noise of half a bin
+    beside = round((RULES.constant_neighbour_share + margin) * 100_000)
     counts = np.zeros(64, dtype=np.int64)
     counts[10], counts[40:50] = 100_000, 500
     for side in (9, 11):
         near = counts.copy()
-        near[side] = round(neighbour * 100_000)
+        near[side] = beside
         assert is_constant_background(near, np.arange(8, 13)) is constant
-    # data stored in steps of 3 bins: the nearest non-empty bins are compared, not the empty ones between
-    lattice = counts.copy()
-    lattice[13] = round(neighbour * 100_000)
+    # data stored in steps of 3 bins: the stored values beside it are compared, not the empty bins between
+    lattice = np.zeros(64, dtype=np.int64)
+    lattice[10], lattice[13], lattice[40:64:3] = 100_000, beside, 500
     assert is_constant_background(lattice, np.arange(8, 13)) is constant
     # air at the bottom of the range: one side only
     bottom = np.zeros(64, dtype=np.int64)
-    bottom[0], bottom[1], bottom[40:50] = 100_000, round(neighbour * 100_000), 500
+    bottom[0], bottom[1], bottom[40:50] = 100_000, beside, 500
     assert is_constant_background(bottom, np.arange(0, 3)) is constant
+
+
+def test_the_objects_own_values_beyond_the_datas_step_are_not_the_backgrounds_noise():
+    # A masked volume: zeros, then the object's values from bin 40 up, nothing between.
+    counts = np.zeros(64, dtype=np.int64)
+    counts[0], counts[40:64] = 100_000, 30_000
+    assert is_constant_background(counts, np.arange(0, 5))
 
 
 def test_no_background_or_an_empty_one_is_not_a_constant_background():
@@ -186,6 +201,8 @@ def test_no_background_or_an_empty_one_is_not_a_constant_background():
     counts[40:50] = 500
     assert not is_constant_background(counts, np.arange(0, 0))  # the option background=none: no class
     assert not is_constant_background(counts, np.arange(0, 5))  # a background class holding no voxels
+    design = design_transfer_function(_flame(noisy_air=False), 1.0, modality="ct", background="none")
+    assert design.background_class is None and not design.constant_background
 
 
 def _flame(noisy_air: bool) -> np.ndarray:
@@ -206,8 +223,10 @@ def test_the_faint_edge_of_a_field_in_empty_space_is_not_fog_and_noisy_air_still
         design = design_transfer_function(_flame(noisy_air), 1.0, modality="ct")
         context = design.look_context()
         assert design.kind == "ct" and design.constant_background is not noisy_air
-        # classes 8..40 values up, beyond 4 voxel-noise widths of the background, within 4 of the model's
-        band = [c.id for c in design.classes if 4 * context.voxel_noise_sd < context.class_bins[c.id] < 40]
+        # classes up to 40 values up: beyond 4 fog widths of the background (voxels' noise on the constant one),
+        # within 4 of the model's
+        fog_reach = RULES.fog_separation * fog_width("mr", context.noise_sd, context.voxel_noise_sd, False)
+        band = [c.id for c in design.classes if fog_reach < context.class_bins[c.id] < 40]
         assert band and max(context.class_bins[band]) < RULES.fog_separation * context.noise_sd
         faint[noisy_air] = [context.roles[c] for c in band]
     assert "fog" not in faint[False]
@@ -493,6 +512,19 @@ def test_on_ct_the_dense_classes_the_default_hides_rise_from_the_ramps_start_to_
     assert look.opacities[2] == pytest.approx(opacity_low)
     assert look.opacities[3] == pytest.approx(opacity_low + (core - opacity_low) * (30 - 24) / (37 - 24))
     assert opacity_low < look.opacities[3] < core
+
+
+def test_a_hidden_dense_class_between_shown_ones_takes_their_ramp_and_the_ramp_never_falls():
+    context = fringe_context()  # dense classes at bins 24, 30 and 37
+    # shown at 24 and 37: the hidden one at 30 lies between them on their ramp
+    ramp = _dense_ramp(context, np.array([0.0, 0.02, 0.3, 0.02, 0.5]), np.array([False, False, True, False, True]))
+    assert ramp[3] == pytest.approx(0.3 + 0.2 * (30 - 24) / (37 - 24))
+    # shown at 30 only: the hidden one above it takes its opacity, the one below ramps up to it
+    ramp = _dense_ramp(context, np.array([0.0, 0.02, 0.02, 0.3, 0.02]), np.array([False, False, False, True, False]))
+    assert ramp[2] == pytest.approx(RULES.opacity_low) and ramp[4] == pytest.approx(0.3)
+    # a tail clearer than the ramp's start: flat at its opacity, not falling towards it
+    ramp = _dense_ramp(context, np.array([0.0, 0.02, 0.02, 0.02, 0.01]), np.array([False, False, False, False, True]))
+    assert ramp[2:].tolist() == pytest.approx([0.01, 0.01, 0.01])
 
 
 @pytest.mark.parametrize("kind", ["ct", "mr"])

@@ -33,6 +33,7 @@ vessel tree exported with 95-99 % zeros), else ``dense-parts`` on CT-like data (
 :func:`check_look` measures it again with an independent ray caster (:func:`.thumbnails.ray_visibility`).
 """
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Callable, Optional
@@ -102,16 +103,12 @@ class LookContext:
     @classmethod
     def build(cls, *, rules: LookRules = RULES, **inputs) -> "LookContext":
         """The context with the roles decided (:func:`.roles.class_roles`)."""
-        kind, noise_sd, voxel_noise_sd = inputs["kind"], inputs["noise_sd"], inputs.get("voxel_noise_sd")
+        context = cls(**inputs, rules=rules)
+        width = noise_width(context.kind, context.noise_sd, context.voxel_noise_sd)
         roles = class_roles(
-            inputs["classes"],
-            inputs["tissue_of_class"],
-            inputs["class_bins"],
-            noise_width(kind, noise_sd, voxel_noise_sd),
-            rules,
-            fog_sd=fog_width(kind, noise_sd, voxel_noise_sd, inputs.get("constant_background", False)),
+            context.classes, context.tissue_of_class, context.class_bins, width, rules, fog_sd=context.fog_sd
         )
-        return cls(**inputs, roles=roles, rules=rules)
+        return dataclasses.replace(context, roles=roles)
 
     def of_role(self, *roles: str) -> np.ndarray:
         """``(n_classes,)`` whether each class has one of ``roles``."""
@@ -333,22 +330,22 @@ def _dense_parts(context: LookContext) -> Made:
 
 def _dense_ramp(context: LookContext, opacities: np.ndarray, visible: np.ndarray) -> np.ndarray:
     """``(n_classes,)`` opacities with the dense classes the default look hides (grouped with the fog or the rim
-    below the dense tail: a plume's fringe, a bone's partial volume) on the presets' monotone ramp: from
-    :attr:`.LookRules.opacity_low` at the lowest of them up to the opacity of the lowest dense class shown (the
-    tail's start), by mean bin. A shell that thickens the dense parts as it nears their value, not a halo at the
-    opacity a user who shows their tissue starts from."""
+    below the dense tail: a plume's fringe, a bone's partial volume) on the presets' monotone ramp, by mean bin:
+    from :attr:`.LookRules.opacity_low` at the lowest of them up to the opacity of the lowest dense class shown (the
+    tail's start), and between the shown ones above it. A shell that thickens the dense parts as it nears their
+    value, not a halo at the opacity a user who shows their tissue starts from."""
     dense = context.of_role("dense")
     hidden, shown = dense & ~visible, dense & visible
     if not hidden.any() or not shown.any():
         return opacities
     bins = np.asarray(context.class_bins, dtype=np.float64)
-    start = int(np.flatnonzero(shown)[np.argmin(bins[shown])])
-    low, high = bins[hidden].min(), bins[start]
-    if high <= low:
-        return opacities
-    place = np.clip((bins - low) / (high - low), 0.0, 1.0)
-    ramp = context.rules.opacity_low + (opacities[start] - context.rules.opacity_low) * place
-    return np.where(hidden & (bins < high), ramp, opacities)
+    order = np.argsort(bins[shown], kind="stable")
+    anchor_bins, anchor_opacities = bins[shown][order], opacities[shown][order]
+    low = bins[hidden].min()
+    if low < anchor_bins[0]:
+        anchor_bins = np.concatenate(([low], anchor_bins))
+        anchor_opacities = np.concatenate(([min(context.rules.opacity_low, anchor_opacities[0])], anchor_opacities))
+    return np.where(hidden, np.interp(bins, anchor_bins, anchor_opacities), opacities)
 
 
 def _cleared_around(

@@ -32,11 +32,13 @@ Roles, in the order they are decided (the first that applies):
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from math import erf, sqrt
 from typing import Optional
 
 import numpy as np
 
 from .classes import IsovalueClass
+from .tissues import value_step
 
 ROLES = ("background", "fog", "dense", "rim", "bulk")
 
@@ -48,7 +50,8 @@ class LookRules:
     Attributes:
         real_share: a tissue holding at least this share of the non-background voxels is a real structure, not a
             few stray voxels (which never decide what is dense, nor become the most opaque thing in view).
-        fog_separation: a class whose mean lies within this many noise widths (:func:`noise_width`, in bins) of
+        fog_separation: a class whose mean lies within this many noise widths (:func:`noise_width`, or
+            :func:`fog_width` for the tissue it belongs to, in bins) of
             the background's mean is at the background's intensity, as noise in it would be: two Gaussians 4 sd
             apart overlap by under 2.5 % (fog when its tissue's largest class is there too, or it touches the
             background: see the module notes).
@@ -91,9 +94,9 @@ class LookRules:
         thin_opacity: opacity per unit distance of the lowest rim class in the *thin structures* look: a structure
             one voxel thick (a voxel is about one unit distance, see :attr:`.visibility.Preview.unit_distance`)
             must stop half the light to be seen at all.
-        constant_background: the background is one stored value, without noise (:func:`is_constant_background`),
-            when the nearest non-empty bin on either side of its fullest bin holds less than this share of it: noise
-            of half a bin, the least a histogram resolves, puts exp(-2) there.
+        constant_neighbour_share: the background is one stored value, without noise (:func:`is_constant_background`),
+            when the stored values next to its fullest bin each hold less than this share of it: Gaussian noise of
+            half a bin, the least a histogram resolves, puts 0.23 of the fullest bin's voxels in each bin beside it.
         opacity_low, opacity_high: opacity per unit distance of the lowest and densest shown tissue on the
             presets' monotone ramp (a haze half the light passes through over 35 units; a surface within 2-3).
     """
@@ -113,7 +116,7 @@ class LookRules:
     thin_foreground: float = 0.05
     thin_share: float = 0.5
     thin_opacity: float = 0.5
-    constant_background: float = float(np.exp(-2.0))
+    constant_neighbour_share: float = (erf(1.5 / sqrt(0.5)) - erf(0.5 / sqrt(0.5))) / (2 * erf(0.5 / sqrt(0.5)))
     opacity_low: float = 0.02
     opacity_high: float = 0.5
 
@@ -136,21 +139,22 @@ def noise_width(kind: str, noise_sd: float, voxel_noise_sd: Optional[float]) -> 
 
 
 def fog_width(kind: str, noise_sd: float, voxel_noise_sd: Optional[float], constant_background: bool) -> float:
-    """The noise width, in bins, in which a tissue lies at the background's intensity (the fog rule's tissue clause,
-    :attr:`LookRules.fog_separation`): the background's noise, which :func:`noise_width` gives, except on CT-like data
-    whose background is one stored value (``constant_background``, :func:`is_constant_background`: air set to 0 by an
-    export, a clip or a mask; a simulation's empty space). That background has no noise, and the intensity model's
-    width of the tissue next to it is the tissue's own spread of values (a flame's envelope fading into empty space),
-    not noise: the voxels' noise measures it, as on other data. Noise scattered in the air (a class touching the
-    background) is still judged in :func:`noise_width`: a zeroed MRI's leftover noise is that."""
+    """The background's noise, in bins: the width in which a tissue lies at the background's intensity (the fog
+    rule's tissue clause, :attr:`LookRules.fog_separation`) and above which a skin's partial volume starts
+    (:attr:`LookRules.ramp_start`). It is :func:`noise_width`, except on CT-like data whose background is one stored
+    value (``constant_background``, :func:`is_constant_background`: air set to 0 by an export, a clip or a mask; a
+    simulation's empty space). That background has no noise, and the intensity model's width of the tissue next to it
+    is the tissue's own spread of values (a flame's envelope fading into empty space), not noise: the voxels' noise
+    measures it, as on other data. Noise scattered in the air (a class touching the background) is still judged in
+    :func:`noise_width`: a zeroed MRI's leftover noise is that."""
     return noise_width("mr" if constant_background else kind, noise_sd, voxel_noise_sd)
 
 
 def is_constant_background(bin_voxels: np.ndarray, background_bins: np.ndarray, rules: LookRules = RULES) -> bool:
     """Whether the background is one stored value (air set to 0 by an export, a clip or a mask; a simulation's empty
-    space) rather than noise around one (:attr:`LookRules.constant_background`). Its class may also hold the lowest
-    values of the object next to it, a thin tail; the nearest non-empty bins are compared, since data stored in
-    coarser steps than the bins leave bins between them empty.
+    space) rather than noise around one (:attr:`LookRules.constant_neighbour_share`). The bins compared are those
+    within the data's step of its fullest bin (:func:`.tissues.value_step`: data stored in coarser steps than the
+    bins leave the bins between their values empty), not the object's own values further up.
 
     Args:
         bin_voxels: ``(n_bins,)`` voxels per bin. background_bins: the background class's bins.
@@ -160,10 +164,9 @@ def is_constant_background(bin_voxels: np.ndarray, background_bins: np.ndarray, 
     if background_bins.size == 0 or counts[background_bins].max() <= 0:
         return False
     fullest = int(background_bins[np.argmax(counts[background_bins])])
-    filled = np.flatnonzero(counts)
-    below, above = filled[filled < fullest], filled[filled > fullest]
-    nearest = np.concatenate((below[-1:], above[:1]))
-    return bool(np.all(counts[nearest] < rules.constant_background * counts[fullest]))
+    distance = np.abs(np.arange(counts.size) - fullest)
+    beside = (distance > 0) & (distance <= value_step(counts))
+    return bool(np.all(counts[beside] < rules.constant_neighbour_share * counts[fullest]))
 
 
 def class_roles(
