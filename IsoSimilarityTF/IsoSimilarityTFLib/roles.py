@@ -41,6 +41,11 @@ from .classes import IsovalueClass
 from .tissues import value_step
 
 ROLES = ("background", "fog", "dense", "rim", "bulk")
+#: The narrowest noise a histogram resolves, in bins: the floor of the voxels' noise (:func:`noise_width`) and the
+#: noise whose spread defines a background without any (:attr:`LookRules.constant_neighbour_share`).
+RESOLVED_SD = 0.5
+# A Gaussian of that width holds erf(x / _ERF_SCALE) of its mass within x of its mean.
+_ERF_SCALE = RESOLVED_SD * sqrt(2.0)
 
 
 @dataclass(frozen=True)
@@ -116,7 +121,7 @@ class LookRules:
     thin_foreground: float = 0.05
     thin_share: float = 0.5
     thin_opacity: float = 0.5
-    constant_neighbour_share: float = (erf(1.5 / sqrt(0.5)) - erf(0.5 / sqrt(0.5))) / (2 * erf(0.5 / sqrt(0.5)))
+    constant_neighbour_share: float = (erf(1.5 / _ERF_SCALE) - erf(0.5 / _ERF_SCALE)) / (2 * erf(0.5 / _ERF_SCALE))
     opacity_low: float = 0.02
     opacity_high: float = 0.5
 
@@ -135,7 +140,7 @@ def noise_width(kind: str, noise_sd: float, voxel_noise_sd: Optional[float]) -> 
     its background's "noise". The voxels' noise counts as at least half a bin (a histogram resolves no less)."""
     if kind == "ct" or voxel_noise_sd is None:
         return noise_sd
-    return min(noise_sd, max(voxel_noise_sd, 0.5))
+    return min(noise_sd, max(voxel_noise_sd, RESOLVED_SD))
 
 
 def fog_width(kind: str, noise_sd: float, voxel_noise_sd: Optional[float], constant_background: bool) -> float:
