@@ -19,11 +19,13 @@ from IsoSimilarityTFLib.gallery import (
     broken_shares,
     check_look,
     class_shares,
+    is_thin,
     make_look,
+    rim_in_the_open,
 )
 from IsoSimilarityTFLib.look import SHOWN_PLACE, bin_opacity_of, ramp_colors
 from IsoSimilarityTFLib.roles import RULES, class_roles, dense_classes, fog_width, is_constant_background, noise_width
-from IsoSimilarityTFLib.visibility import Preview, visibility_histogram
+from IsoSimilarityTFLib.visibility import Preview, apart_share, visibility_histogram
 from isosimtf.phantom import head_phantom
 
 # Roles: each threshold on both sides of its boundary -----------------------------------------------------------------
@@ -736,6 +738,87 @@ def test_thin_structures_are_offered_when_the_rim_is_a_real_share_of_the_voxels(
     rim_share = voxels[1] / voxels[1:].sum()
     context = twigs_context(dataclasses.replace(RULES, real_share=factor * rim_share))
     assert (make_look("thin-structures", context) is not None) is offered
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_apart_share_counts_the_voxels_with_no_face_neighbour_of_the_other_group(seed):
+    """Against a voxel-by-voxel count on a random volume of three groups (and -1, none), edges included."""
+    rng = np.random.default_rng(seed)
+    bins = rng.integers(0, 8, size=(6, 7, 9))
+    group_of_bin = np.array([-1, 0, 0, 1, 1, 2, 2, 2])
+    groups = group_of_bin[bins]
+    apart = inside = 0
+    for k, j, i in zip(*np.nonzero(groups == 0)):
+        inside += 1
+        steps = np.vstack([np.eye(3, dtype=int), -np.eye(3, dtype=int)])
+        neighbours = [(k + dk, j + dj, i + di) for dk, dj, di in steps]
+        apart += not any(all(0 <= c < n for c, n in zip(at, groups.shape)) and groups[at] == 1 for at in neighbours)
+    assert apart_share(Preview(bins, (1.0, 1.0, 1.0), 8), group_of_bin, 0, 1) == pytest.approx(apart / inside)
+    assert apart_share(Preview(bins, (1.0, 1.0, 1.0), 8), group_of_bin, 3, 1) == 0.0  # a group with no voxel
+
+
+def face_skin(core):
+    """The voxels outside ``core`` with a face on it: a skin one voxel thick."""
+    skin = np.zeros_like(core)
+    for axis in range(3):
+        near, of_core = np.moveaxis(skin, axis, 0), np.moveaxis(core, axis, 0)
+        near[1:] |= of_core[:-1]
+        near[:-1] |= of_core[1:]
+    return skin & ~core
+
+
+def skinned_twigs_context(twigs, rules=RULES):
+    """The twigs context with the core wrapped in a skin one voxel thick of the twigs' bin (rim too): the
+    partial-volume skin of a surface, lying against the core; ``twigs``: how many of the four twigs are kept."""
+    context = twigs_context(rules)
+    bins = context.preview.bins.copy()
+    bins[bins == 15] = 0
+    for k in (4, 12, 28, 36)[:twigs]:
+        bins[k, 3, 2:38] = 15
+    bins[face_skin(bins == 35)] = 15
+    voxels = np.bincount(context.labels[bins.ravel()], minlength=3)
+    return dataclasses.replace(
+        context, classes=make_classes(voxels.tolist(), contact=[1.0, 1.0, 0.1]), preview=Preview(bins, (5.0,) * 3, 40)
+    )
+
+
+def test_a_rim_that_is_a_surfaces_skin_gives_no_thin_structures_look():
+    context = skinned_twigs_context(twigs=0)
+    assert context.roles == ["background", "rim", "bulk"] and not is_thin(context)
+    assert not rim_in_the_open(context) and make_look("thin-structures", context) is None
+    assert rim_in_the_open(twigs_context()) and make_look("thin-structures", twigs_context()) is not None
+
+
+@pytest.mark.parametrize("margin, offered", [(-0.01, True), (0.01, False)])
+def test_thin_structures_beside_a_skin_are_offered_when_the_thin_apart_share_of_the_rim_lies_in_the_open(
+    margin, offered
+):
+    """Two twigs beside the core's skin: their 72 voxels are the rim's voxels apart from the core."""
+    context = skinned_twigs_context(twigs=2)
+    group = np.array([-1, 0, 1])[context.labels]
+    share = apart_share(context.preview, group, 0, 1)
+    skin = int(np.count_nonzero(context.labels[context.preview.bins] == 1)) - 72
+    assert share == pytest.approx(72 / (72 + skin))
+    context = dataclasses.replace(context, rules=dataclasses.replace(RULES, thin_apart=share + margin))
+    assert rim_in_the_open(context) is offered
+    assert (make_look("thin-structures", context) is not None) is offered
+
+
+def test_thin_structures_alone_are_shown_whatever_their_rims_shape():
+    """A rod in its skin, alone in an empty field (the rim most of the objects, the objects under 5 % of the volume):
+    the first click of a vessel tree, made although the skin lies against the rod."""
+    bins = np.zeros((40, 40, 40), dtype=np.intp)
+    bins[20, 20, 5:35] = 35
+    bins[face_skin(bins == 35)] = 15
+    labels = np.select([np.arange(40) < 5, np.arange(40) < 25], [0, 1], 2)
+    class_bins = np.array([0.0, 15.0, 35.0])
+    context = LookContext.build(
+        classes=make_classes(np.bincount(labels[bins.ravel()], minlength=3).tolist(), contact=[1.0, 1.0, 0.1]),
+        tissue_of_class=np.arange(3), class_values=class_bins, class_bins=class_bins, labels=labels, noise_sd=1.0,
+        preview=Preview(bins, (5.0, 5.0, 5.0), 40), kind="mr",
+    )  # fmt: skip
+    assert is_thin(context) and not rim_in_the_open(context)
+    assert make_look("thin-structures", context) is not None
 
 
 @pytest.mark.parametrize("thin_opacity", [0.3, RULES.thin_opacity])

@@ -45,7 +45,7 @@ from .look import BACKGROUND_GREY, bin_opacity_of, default_look
 from .options import LOOK_NAMES
 from .roles import RULES, LookRules, class_roles, fog_width, noise_width, tissue_mean_bins
 from .thumbnails import ray_visibility  # check_look's independent ray caster: an oracle, not the fast path
-from .visibility import Preview, visibility_histogram
+from .visibility import Preview, apart_share, visibility_histogram
 
 # Rounding allowed on a measured share (sums of float shares) when checking a promise.
 _SHARE_ROUNDING = 1e-9
@@ -200,6 +200,17 @@ def is_thin(context: LookContext) -> bool:
         return False
     rim = voxels[context.of_role("rim")].sum()
     return bool(rim >= context.rules.thin_rim_share * objects and objects <= context.rules.thin_foreground * total)
+
+
+def rim_in_the_open(context: LookContext) -> bool:
+    """Whether the rim holds structures of its own: :attr:`.LookRules.thin_apart` of its preview voxels touch no bulk
+    or dense voxel (False without a preview: nothing measured)."""
+    if context.preview is None:
+        return False
+    group = np.full(len(context.classes), -1)
+    group[context.of_role("rim")] = 0
+    group[context.of_role("bulk", "dense")] = 1
+    return apart_share(context.preview, group[context.labels], 0, 1) >= context.rules.thin_apart
 
 
 def gallery(context: LookContext) -> list[GalleryLook]:
@@ -484,11 +495,14 @@ def _thin_structures(context: LookContext) -> Made:
     """The rim as structure (from ``rules.thin_opacity`` at its lowest class up to the densest shown opacity, by
     intensity, in the densest shown class's colour) over the default look, everything else made clearer until the
     rim gives ``rules.thin_share`` of the picture (:func:`_cleared_around`): twigs are thin and sparse, and a pot
-    left as the default look has it takes the picture of them."""
+    left as the default look has it takes the picture of them. Made for thin structures alone (:func:`is_thin`), or
+    beside other objects where the rim lies in the open (:func:`rim_in_the_open`), not as a surface's skin."""
     rim = context.of_role("rim")
     voxels = np.array([c.voxels for c in context.classes], dtype=np.float64)
     foreground = ~context.of_role("background", "fog")
     if not rim.any() or voxels[rim].sum() < context.rules.real_share * max(voxels[foreground].sum(), 1.0):
+        return None
+    if not is_thin(context) and not rim_in_the_open(context):
         return None
     colors, opacities, visible = _default(context, context.kind)
     opacities = np.asarray(opacities, dtype=np.float64)

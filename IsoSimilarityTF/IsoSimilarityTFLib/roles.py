@@ -92,6 +92,11 @@ class LookRules:
             thick, as the small vessels of an angiogram.
         thin_foreground: ... and the objects fill at most this share of the volume: the vessel trees exported with
             95-99 % zeros that a first click must show whole (not a head whose soft tissue was clipped away).
+        thin_apart: the *thin structures* look is offered beside other objects where at least this share of the
+            rim's voxels (in the preview) touch no bulk or dense voxel (:func:`.visibility.apart_share`): twigs and
+            small vessels lie in the open, while the partial-volume skin of a surface lies against the body it
+            blurs, and shown as structure it is that surface's speckle (a head's or an abdomen's skin leaves at most
+            a tenth of its voxels apart, a plant's twigs and a vessel tree's rim about two fifths).
         thin_share: the *thin structures* look promises that the rim gives at least this share of the picture, the
             rest made clearer until it does: the thin structures are what it shows, more than anything around them
             (a plant's pot, which otherwise takes the picture of its twigs); not more, since the rim is also the
@@ -119,6 +124,7 @@ class LookRules:
     see_through: tuple[float, float] = (0.2, 0.4)
     thin_rim_share: float = 0.5
     thin_foreground: float = 0.05
+    thin_apart: float = 0.25
     thin_share: float = 0.5
     thin_opacity: float = 0.5
     constant_neighbour_share: float = (erf(1.5 / _ERF_SCALE) - erf(0.5 / _ERF_SCALE)) / (2 * erf(0.5 / _ERF_SCALE))
