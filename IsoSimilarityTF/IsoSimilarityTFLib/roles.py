@@ -25,8 +25,9 @@ Roles, in the order they are decided (the first that applies):
   intensity model puts trabecular bone in one tissue with the soft tissue (its histogram has no valley between
   them), the bone's classes are still dense.
 - ``"rim"``: most of its voxels touch the background (:attr:`LookRules.rim_contact`): the partial-volume skin of
-  an object, or a structure only a voxel or two thick (a small vessel, a twig), which is all skin. Whether the rim
-  *is* the structure or hides it, the data cannot say: one look shows it, another clears it.
+  an object, or a structure only a voxel or two thick (a small vessel, a twig), which is all skin. Where it lies in
+  the open (:attr:`LookRules.thin_apart`), whether it *is* the structure or hides it, the data cannot say: one look
+  shows it, another clears it; where it lies against the body it blurs, it is a surface's skin.
 - ``"bulk"``: everything else: the tissue that fills or encloses the rest (soft tissue, a housing, a brain).
 """
 
