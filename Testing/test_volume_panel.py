@@ -249,3 +249,12 @@ def test_the_gallery_offers_a_look_showing_what_was_scanned_for(key, at_least):
     best = max(case["looks"], key=lambda row: row["scanned_for"])
     assert best["scanned_for"] >= at_least, (best["look"], best["scanned_for"])
     assert all(row["oracle"] in ([], None) for row in case["looks"])
+
+
+@pytest.mark.parametrize(
+    "key, offered", [("plant-ct", True), ("angiogram", True), ("abdomen-ct", False), ("chest-cta-8bit", False)]
+)
+def test_thin_structures_are_offered_for_twigs_and_vessels_not_for_a_surfaces_skin(key, offered):
+    # The rim of twigs and of a vessel tree lies in the open; an abdomen's or a chest's skin lies against the body.
+    looks = [row["look"] for row in _measured(key)["looks"]]
+    assert ("thin-structures" in looks) is offered, looks
