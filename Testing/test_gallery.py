@@ -79,6 +79,15 @@ def test_a_dense_class_must_be_of_a_real_tissue(share, dense):
     assert (2 in dense_classes(classes, np.arange(3), np.array([0.0, 20.0, 60.0]), 1.0)) is dense
 
 
+@pytest.mark.parametrize("offset, dense", [(-0.01, False), (0.01, True)])
+def test_a_dense_class_lies_above_a_background_that_is_not_the_lowest(offset, dense):
+    # A CT cropped to the body: soft tissue (bin 40) is the largest class, the background; the lungs (bin 10) are the
+    # main material. A class between them is their blend; above the soft tissue it is contrast or bone.
+    classes = make_classes([50_000, 20_000, 3000, 3000])
+    bins = np.array([40.0, 10.0, 40.0 + offset, 60.0])
+    assert dense_classes(classes, np.arange(4), bins, 1.0) == ([2, 3] if dense else [3])
+
+
 def test_dense_is_decided_per_class_inside_a_tissue():
     # Soft tissue and trabecular bone in one tissue (no valley between them in the histogram): the bone's class is
     # dense, the soft tissue's next to it is not.

@@ -23,7 +23,9 @@ Roles, in the order they are decided (the first that applies):
   of its own; a tissue's mean follows its partial-volume tail down: in an export whose air was set to 0, the lowest
   tissue is mostly the blur of the skull, and its mean lies far below the brain). Decided per class: where the
   intensity model puts trabecular bone in one tissue with the soft tissue (its histogram has no valley between
-  them), the bone's classes are still dense.
+  them), the bone's classes are still dense. A dense class lies above the background too: where the background is
+  not the lowest material (the soft tissue of a CT cropped to the body, its largest class), the classes between it
+  and the main material below (the lungs) are their blend.
 - ``"rim"``: most of its voxels touch the background (:attr:`LookRules.rim_contact`): the partial-volume skin of
   an object, or a structure only a voxel or two thick (a small vessel, a twig), which is all skin. Where it lies in
   the open (:attr:`LookRules.thin_apart`), whether it *is* the structure or hides it, the data cannot say: one look
@@ -250,7 +252,9 @@ def dense_classes(
     rules: LookRules = RULES,
 ) -> list[int]:
     """Ids of the classes of real tissues whose mean lies ``rules.dense_separation`` noise widths above the main
-    material (:func:`main_material_bin`; the background left out), ascending."""
+    material (:func:`main_material_bin`; the background left out) and above the background's, ascending: between
+    the main material and a background above it lies their blend, not a denser material (a chest CT cropped to the
+    body: its soft tissue is the largest class, the background, and the lungs' edge against it lies between)."""
     voxels = np.array([c.voxels for c in classes], dtype=np.float64)
     foreground = np.array([not c.background for c in classes])
     n_tissues = int(tissue_of_class.max()) + 1 if tissue_of_class.size else 0
@@ -262,6 +266,8 @@ def dense_classes(
     real = tissue_voxels[tissue_of_class] >= rules.real_share * total
     main = main_material_bin(voxels * foreground, tissue_voxels, tissue_bin, class_bins)
     above = class_bins >= main + rules.dense_separation * noise_sd
+    if not foreground.all():
+        above &= class_bins > class_bins[~foreground].max()
     return [int(c) for c in np.flatnonzero(real & above & foreground)]
 
 
