@@ -7,7 +7,7 @@ import pytest
 from test_look import make_classes
 
 from IsoSimilarityTFLib import design_transfer_function, quantize
-from IsoSimilarityTFLib.classes import voxel_noise_sd
+from IsoSimilarityTFLib.classes import mark_face_neighbours, voxel_noise_sd
 from IsoSimilarityTFLib.design import TransferFunctionDesign
 from IsoSimilarityTFLib.gallery import (
     LOOK_NAMES,
@@ -769,10 +769,7 @@ def test_the_apart_share_counts_the_voxels_with_no_face_neighbour_of_the_other_g
 def face_skin(core):
     """The voxels outside ``core`` with a face on it: a skin one voxel thick."""
     skin = np.zeros_like(core)
-    for axis in range(3):
-        near, of_core = np.moveaxis(skin, axis, 0), np.moveaxis(core, axis, 0)
-        near[1:] |= of_core[:-1]
-        near[:-1] |= of_core[1:]
+    mark_face_neighbours(core, skin)
     return skin & ~core
 
 

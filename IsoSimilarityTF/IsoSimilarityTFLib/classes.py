@@ -116,6 +116,16 @@ def runs(sorted_bins: np.ndarray) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(firsts, lasts)]
 
 
+def mark_face_neighbours(mask: np.ndarray, out: np.ndarray) -> None:
+    """Set ``out`` (bool, ``mask``'s shape, any number of axes) in place wherever a face neighbour is in ``mask``:
+    the voxel before or after along any axis (the array's edges have none beyond them)."""
+    for axis in range(mask.ndim):
+        # Views along the axis: each voxel marked where the one before or after it is in the mask.
+        near, inside = np.moveaxis(out, axis, 0), np.moveaxis(mask, axis, 0)
+        near[1:] |= inside[:-1]
+        near[:-1] |= inside[1:]
+
+
 def background_contact(
     bins: np.ndarray, labels: np.ndarray, background_id: int, bin_voxels: Optional[np.ndarray] = None
 ) -> np.ndarray:
@@ -153,10 +163,7 @@ def background_contact(
         for k in window:  # the neighbours in the planes either side
             if k != plane:
                 near |= looked_up[k][1]
-        near[1:] |= in_plane[:-1]
-        near[:-1] |= in_plane[1:]
-        near[:, 1:] |= in_plane[:, :-1]
-        near[:, :-1] |= in_plane[:, 1:]
+        mark_face_neighbours(in_plane, near)
         near &= ~in_plane
         touching += np.bincount(plane_bins.reshape(-1)[np.flatnonzero(near)], minlength=n_bins)
         if not counted:

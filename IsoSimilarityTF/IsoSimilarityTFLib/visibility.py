@@ -28,6 +28,8 @@ from typing import Optional
 
 import numpy as np
 
+from .classes import mark_face_neighbours
+
 #: The scale Slicer's presets were made for: opacity per mm on a head or a chest, about 20 cm across. A volume of
 #: this extent gets a unit distance of 1 mm; any other, the same share of its extent.
 PRESET_EXTENT_MM = 200.0
@@ -195,9 +197,5 @@ def apart_share(preview: Preview, group_of_bin: np.ndarray, group: int, other: i
         return 0.0
     is_other = groups == other
     beside = np.zeros_like(is_other)
-    for axis in range(3):
-        # Views along the axis: each voxel marked where the one before or after it is of ``other``.
-        near, of_other = np.moveaxis(beside, axis, 0), np.moveaxis(is_other, axis, 0)
-        near[1:] |= of_other[:-1]
-        near[:-1] |= of_other[1:]
+    mark_face_neighbours(is_other, beside)
     return int(np.count_nonzero(inside & ~beside)) / count
