@@ -19,13 +19,15 @@ from IsoSimilarityTFLib.gallery import (
     broken_shares,
     check_look,
     class_shares,
+    first_look_name,
+    gallery,
     is_thin,
     make_look,
     rim_in_the_open,
 )
 from IsoSimilarityTFLib.look import SHOWN_PLACE, bin_opacity_of, ramp_colors
 from IsoSimilarityTFLib.roles import RULES, class_roles, dense_classes, fog_width, is_constant_background, noise_width
-from IsoSimilarityTFLib.visibility import Preview, apart_share, visibility_histogram
+from IsoSimilarityTFLib.visibility import SURROUNDINGS, Preview, box_sums, surroundings_fill, visibility_histogram
 from isosimtf.phantom import head_phantom
 
 # Roles: each threshold on both sides of its boundary -----------------------------------------------------------------
@@ -750,20 +752,38 @@ def test_thin_structures_are_offered_when_the_rim_is_a_real_share_of_the_voxels(
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_the_apart_share_counts_the_voxels_with_no_face_neighbour_of_the_other_group(seed):
-    """Against a voxel-by-voxel count on a random volume of three groups (and -1, none), edges included."""
+@pytest.mark.parametrize("size", [1, 3, 5])
+def test_box_sums_count_the_cube_around_each_voxel(seed, size):
+    """Against an explicit sum over each voxel's cube, cut at the edges."""
+    mask = np.random.default_rng(seed).random((6, 7, 9)) < 0.4
+    half = size // 2
+    expected = np.zeros(mask.shape, dtype=np.int64)
+    for k, j, i in np.ndindex(mask.shape):
+        expected[k, j, i] = mask[max(k - half, 0) : k + half + 1, max(j - half, 0) : j + half + 1,
+                                 max(i - half, 0) : i + half + 1].sum()  # fmt: skip
+    assert np.array_equal(box_sums(mask, size), expected)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_surroundings_fill_is_the_median_object_share_of_the_members_cubes(seed):
+    """Against a voxel-by-voxel count on a random volume (bins 0-1 empty, 2-7 objects, 2-3 members), edges
+    included; a line one voxel thick fills a twenty-fifth of the cube, a plane a fifth."""
     rng = np.random.default_rng(seed)
     bins = rng.integers(0, 8, size=(6, 7, 9))
-    group_of_bin = np.array([-1, 0, 0, 1, 1, 2, 2, 2])
-    groups = group_of_bin[bins]
-    apart = inside = 0
-    for k, j, i in zip(*np.nonzero(groups == 0)):
-        inside += 1
-        steps = np.vstack([np.eye(3, dtype=int), -np.eye(3, dtype=int)])
-        neighbours = [(k + dk, j + dj, i + di) for dk, dj, di in steps]
-        apart += not any(all(0 <= c < n for c, n in zip(at, groups.shape)) and groups[at] == 1 for at in neighbours)
-    assert apart_share(Preview(bins, (1.0, 1.0, 1.0), 8), group_of_bin, 0, 1) == pytest.approx(apart / inside)
-    assert apart_share(Preview(bins, (1.0, 1.0, 1.0), 8), group_of_bin, 3, 1) == 0.0  # a group with no voxel
+    member, objects = np.isin(np.arange(8), (2, 3)), np.arange(8) >= 2
+    padded = np.pad(objects[bins], SURROUNDINGS // 2)
+    fills = [padded[k : k + SURROUNDINGS, j : j + SURROUNDINGS, i : i + SURROUNDINGS].mean()
+             for k, j, i in zip(*np.nonzero(member[bins]))]  # fmt: skip
+    preview = Preview(bins, (1.0, 1.0, 1.0), 8)
+    assert surroundings_fill(preview, member, objects) == pytest.approx(np.median(fills))
+    assert surroundings_fill(preview, np.zeros(8, dtype=bool), objects) == 0.0  # no member
+    line, plane = np.zeros((9, 9, 9), dtype=np.intp), np.zeros((9, 9, 9), dtype=np.intp)
+    line[4, 4, :] = 1
+    plane[4, :, :] = 1
+    line[4, 4, 4] = plane[4, 4, 4] = 2  # the member, in the middle
+    centre, objects = np.array([False, False, True]), np.array([False, True, True])
+    assert surroundings_fill(Preview(line, (1.0,) * 3, 3), centre, objects) == pytest.approx(1 / SURROUNDINGS**2)
+    assert surroundings_fill(Preview(plane, (1.0,) * 3, 3), centre, objects) == pytest.approx(1 / SURROUNDINGS)
 
 
 def face_skin(core):
@@ -795,26 +815,33 @@ def test_a_rim_that_is_a_surfaces_skin_gives_no_thin_structures_look():
     assert rim_in_the_open(twigs_context()) and make_look("thin-structures", twigs_context()) is not None
 
 
-@pytest.mark.parametrize("factor, offered", [(0.95, True), (1.05, False)])
-def test_thin_structures_beside_a_skin_are_offered_when_the_thin_apart_share_of_the_rim_lies_in_the_open(
-    factor, offered
-):
-    """Two twigs beside the core's skin: their 72 voxels are the rim's voxels apart from the core."""
-    context = skinned_twigs_context(twigs=2)
-    group = np.array([-1, 0, 1])[context.labels]
-    share = apart_share(context.preview, group, 0, 1)
-    skin = int(np.count_nonzero(context.labels[context.preview.bins] == 1)) - 72
-    assert share == pytest.approx(72 / (72 + skin))
-    context = dataclasses.replace(context, rules=dataclasses.replace(RULES, thin_apart=share * factor))
+@pytest.mark.parametrize("factor, offered", [(0.95, False), (1.05, True)])
+def test_thin_structures_beside_other_objects_are_offered_where_the_rim_lies_along_lines(factor, offered):
+    """Four twigs one voxel thick beside a core: their voxels' cubes are a twenty-fifth full (less at their ends)."""
+    fill = surroundings_fill(twigs_context().preview, np.arange(40) == 15, np.arange(40) >= 5)
+    assert 0 < fill <= 1 / SURROUNDINGS**2
+    context = twigs_context(dataclasses.replace(RULES, line_fill=fill * factor))
     assert rim_in_the_open(context) is offered
     assert (make_look("thin-structures", context) is not None) is offered
+
+
+@pytest.mark.parametrize("kind, first", [("mr", "thin-structures"), ("ct", "dense-parts")])
+@pytest.mark.parametrize("factor", [0.95, 1.05])
+def test_twigs_in_the_open_are_the_first_click_on_data_that_are_not_ct_like(kind, first, factor):
+    """Beside a pot, twigs that lie along lines start as thin structures where the first click would otherwise be
+    the outer surface, which clears them as a skin; a CT's first click stays its dense parts."""
+    fill = surroundings_fill(twigs_context().preview, np.arange(40) == 15, np.arange(40) >= 5)
+    context = dataclasses.replace(twigs_context(dataclasses.replace(RULES, line_fill=fill * factor)), kind=kind)
+    expected = first if factor > 1 else {"mr": "outer-surface", "ct": "dense-parts"}[kind]
+    assert first_look_name(context) == expected
+    assert gallery(context)[0].name == expected
 
 
 def test_thin_structures_alone_are_shown_whatever_their_rims_shape():
     """A rod in its skin, alone in an empty field (the rim most of the objects, the objects under 5 % of the volume):
     the first click of a vessel tree, made although the skin lies against the rod."""
     bins = np.zeros((40, 40, 40), dtype=np.intp)
-    bins[20, 20, 5:35] = 35
+    bins[19:22, 19:22, 5:35] = 35
     bins[face_skin(bins == 35)] = 15
     labels = np.select([np.arange(40) < 5, np.arange(40) < 25], [0, 1], 2)
     class_bins = np.array([0.0, 15.0, 35.0])

@@ -252,9 +252,20 @@ def test_the_gallery_offers_a_look_showing_what_was_scanned_for(key, at_least):
 
 
 @pytest.mark.parametrize(
-    "key, offered", [("plant-ct", True), ("angiogram", True), ("abdomen-ct", False), ("chest-cta-8bit", False)]
+    "key, offered",
+    [
+        ("plant-ct", True),
+        ("angiogram", True),
+        ("abdomen-ct", False),
+        ("chest-cta-8bit", False),
+        ("phantom-clipped", False),
+        ("head-ct-clipped", False),
+    ],
 )
 def test_thin_structures_are_offered_for_twigs_and_vessels_not_for_a_surfaces_skin(key, offered):
-    # The rim of twigs and of a vessel tree lies in the open; an abdomen's or a chest's skin lies against the body.
+    # The rim of twigs and of a vessel tree lies along lines in the open, and is the first click there; an abdomen's
+    # or a chest's skin lies against the body, and what a clip at 0 HU leaves of a soft tissue fills it as the tissue
+    # did (the speckle of its noise).
     looks = [row["look"] for row in _measured(key)["looks"]]
     assert ("thin-structures" in looks) is offered, looks
+    assert (_first_click(_measured(key))["look"] == "thin-structures") is offered

@@ -18,19 +18,21 @@ name                what it shows                                            off
                     a brain's cortex: MR-Default's look)
 ``see-through``     the dense parts look, with the bulk around them kept at   a class is ``dense`` and another
                     :attr:`.LookRules.see_through` of the picture            ``bulk``
-``thin-structures`` the rim shown as structure, in its colour: small       a real share of the voxels is ``rim``
-                    vessels, twigs; the rest cleared until the rim gives
-                    :attr:`.LookRules.thin_share` of the picture (a
+``thin-structures`` the rim shown as structure, in its colour: small       thin structures alone, or a real share
+                    vessels, twigs; the rest cleared until the rim gives     of the voxels is ``rim`` lying along
+                    :attr:`.LookRules.thin_share` of the picture (a          lines in the open
                     plant's twigs, not its pot)
 ``all-tissues``     every tissue, on the presets' monotone ramp              two tissues or more
 ``classes``         one palette colour per class (the thesis)                two classes or more
 =================== ======================================================== ======================================
 
 The first click is ``thin-structures`` for thin structures alone in an empty field of view (:func:`is_thin`: a
-vessel tree exported with 95-99 % zeros), else ``dense-parts`` on CT-like data (:func:`.look.detect_kind`), else
-``outer-surface``; a look whose transfer function equals an earlier one is left out. Each look states its
-*promise*, the share of the picture some roles give (measured by the visibility histogram of :mod:`.visibility`);
-:func:`check_look` measures it again with an independent ray caster (:func:`.thumbnails.ray_visibility`).
+vessel tree exported with 95-99 % zeros) and, on data that are not CT-like, beside other objects where the rim lies
+along lines in the open (:func:`rim_in_the_open`: a plant's twigs), else ``dense-parts`` on CT-like data
+(:func:`.look.detect_kind`), else ``outer-surface``; a look whose transfer function equals an earlier one is left
+out. Each look states its *promise*, the share of the picture some roles give (measured by the visibility histogram
+of :mod:`.visibility`); :func:`check_look` measures it again with an independent ray caster
+(:func:`.thumbnails.ray_visibility`).
 """
 
 import dataclasses
@@ -45,7 +47,7 @@ from .look import BACKGROUND_GREY, bin_opacity_of, default_look
 from .options import LOOK_NAMES
 from .roles import RULES, LookRules, class_roles, fog_width, noise_width, tissue_mean_bins
 from .thumbnails import ray_visibility  # check_look's independent ray caster: an oracle, not the fast path
-from .visibility import Preview, apart_share, visibility_histogram
+from .visibility import Preview, surroundings_fill, visibility_histogram
 
 # Rounding allowed on a measured share (sums of float shares) when checking a promise.
 _SHARE_ROUNDING = 1e-9
@@ -183,8 +185,10 @@ class GalleryLook:
 def first_look_name(context: LookContext) -> str:
     """The first click's look: ``thin-structures`` for thin structures alone in an empty field of view (a vessel tree
     exported with 95-99 % zeros: most of the objects' voxels are rim, and they fill at most
-    :attr:`.LookRules.thin_foreground` of the volume), else ``dense-parts`` on CT-like data and ``outer-surface``."""
-    if is_thin(context):
+    :attr:`.LookRules.thin_foreground` of the volume), and on data that are not CT-like where the rim lies along lines
+    in the open (:func:`rim_in_the_open`: a plant's twigs, which the outer surface clears as if they were a skin);
+    else ``dense-parts`` on CT-like data and ``outer-surface``."""
+    if is_thin(context) or (context.kind != "ct" and rim_in_the_open(context)):
         return "thin-structures"
     return "dense-parts" if context.kind == "ct" else "outer-surface"
 
@@ -203,14 +207,16 @@ def is_thin(context: LookContext) -> bool:
 
 
 def rim_in_the_open(context: LookContext) -> bool:
-    """Whether the rim holds structures of its own: :attr:`.LookRules.thin_apart` of its preview voxels touch no bulk
-    or dense voxel (False without a preview: nothing measured)."""
-    if context.preview is None:
+    """Whether the rim holds structures of its own: a real share of the objects' voxels (:attr:`.LookRules.real_share`
+    of those not background or fog) lying in the open, along lines (:attr:`.LookRules.line_fill`), not as the skin of
+    a body (False without a preview: nothing measured)."""
+    rim = context.of_role("rim")
+    voxels = np.array([c.voxels for c in context.classes], dtype=np.float64)
+    objects = ~context.of_role("background", "fog")
+    if context.preview is None or voxels[rim].sum() < context.rules.real_share * max(voxels[objects].sum(), 1.0):
         return False
-    group = np.full(len(context.classes), -1)
-    group[context.of_role("rim")] = 0
-    group[context.of_role("bulk", "dense")] = 1
-    return apart_share(context.preview, group[context.labels], 0, 1) >= context.rules.thin_apart
+    fill = surroundings_fill(context.preview, rim[context.labels], objects[context.labels])
+    return fill < context.rules.line_fill
 
 
 def gallery(context: LookContext) -> list[GalleryLook]:
@@ -497,13 +503,9 @@ def _thin_structures(context: LookContext) -> Made:
     rim gives ``rules.thin_share`` of the picture (:func:`_cleared_around`): twigs are thin and sparse, and a pot
     left as the default look has it takes the picture of them. Made for thin structures alone (:func:`is_thin`), or
     beside other objects where the rim lies in the open (:func:`rim_in_the_open`), not as a surface's skin."""
-    rim = context.of_role("rim")
-    voxels = np.array([c.voxels for c in context.classes], dtype=np.float64)
-    foreground = ~context.of_role("background", "fog")
-    if not rim.any() or voxels[rim].sum() < context.rules.real_share * max(voxels[foreground].sum(), 1.0):
-        return None
     if not is_thin(context) and not rim_in_the_open(context):
         return None
+    rim = context.of_role("rim")
     colors, opacities, visible = _default(context, context.kind)
     opacities = np.asarray(opacities, dtype=np.float64)
     # The rim as structure: from thin_opacity at its lowest class up to the densest shown opacity, by intensity.

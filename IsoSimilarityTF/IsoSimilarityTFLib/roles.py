@@ -28,8 +28,8 @@ Roles, in the order they are decided (the first that applies):
   and the main material below (the lungs) are their blend.
 - ``"rim"``: most of its voxels touch the background (:attr:`LookRules.rim_contact`): the partial-volume skin of
   an object, or a structure only a voxel or two thick (a small vessel, a twig), which is all skin. Where it lies in
-  the open (:attr:`LookRules.thin_apart`), whether it *is* the structure or hides it, the data cannot say: one look
-  shows it, another clears it; where it lies against the body it blurs, it is a surface's skin.
+  the open, along lines (:attr:`LookRules.line_fill`), whether it *is* the structure or hides it, the data cannot
+  say: one look shows it, another clears it; where it lies against the body it blurs, it is a surface's skin.
 - ``"bulk"``: everything else: the tissue that fills or encloses the rest (soft tissue, a housing, a brain).
 """
 
@@ -95,11 +95,15 @@ class LookRules:
             thick, as the small vessels of an angiogram.
         thin_foreground: ... and the objects fill at most this share of the volume: the vessel trees exported with
             95-99 % zeros that a first click must show whole (not a head whose soft tissue was clipped away).
-        thin_apart: the *thin structures* look is offered beside other objects where at least this share of the
-            rim's voxels (in the preview) touch no bulk or dense voxel (:func:`.visibility.apart_share`): twigs and
-            small vessels lie in the open, while the partial-volume skin of a surface lies against the body it
-            blurs, and shown as structure it is that surface's speckle (a head's or an abdomen's skin leaves at most
-            a tenth of its voxels apart, a plant's twigs and a vessel tree's rim about two fifths).
+        line_fill: the rim lies in the open, along lines (twigs, small vessels), where its preview voxels' median
+            surroundings are filled by objects (not background, not fog) to less than this share
+            (:func:`.visibility.surroundings_fill`): a plane through the cube measured fills a fifth of it, a line one
+            voxel thick a twenty-fifth, while the skin of a body lies against the body it blurs (0.46-0.79 on the
+            panel) and the speckle a clip at 0 HU leaves of a soft tissue fills it as the tissue did (0.30-0.63).
+            Shown as structure, a surface's skin is its speckle: the *thin structures* look is offered beside other
+            objects only where the rim lies along lines (a plant's twigs 0.06, a vessel tree's rim 0.14), and on
+            data that are not CT-like it is the first click there: the outer surface clears the rim as the skin of
+            what it covers, and lines in the open have nothing under them.
         thin_share: the *thin structures* look promises that the rim gives at least this share of the picture, the
             rest made clearer until it does: the thin structures are what it shows, more than anything around them
             (a plant's pot, which otherwise takes the picture of its twigs); not more, since the rim is also the
@@ -127,7 +131,7 @@ class LookRules:
     see_through: tuple[float, float] = (0.2, 0.4)
     thin_rim_share: float = 0.5
     thin_foreground: float = 0.05
-    thin_apart: float = 0.25
+    line_fill: float = 0.2
     thin_share: float = 0.5
     thin_opacity: float = 0.5
     constant_neighbour_share: float = (erf(1.5 / _ERF_SCALE) - erf(0.5 / _ERF_SCALE)) / (2 * erf(0.5 / _ERF_SCALE))
