@@ -98,7 +98,9 @@ DEPTH_XYZ = {"anterior": 1, "posterior": 1, "left": 0, "right": 0, "superior": 2
 
 
 def slow_picture(bins, spacing, colors, opacity, unit_distance, view, background):
-    """The unshaded picture, pixel by pixel and sample by sample, when the picture has one pixel per ray."""
+    """The unshaded picture, pixel by pixel and sample by sample, when the picture has one pixel per ray: each step
+    from a sample to the next (the last one's within its bin) is the bins between theirs, one after the other, each
+    an equal part of the step (pre-integration, as the bins run from one sample's value to the next's)."""
     n = bins.shape[0]
     step = spacing[DEPTH_XYZ[view]]
     picture = np.zeros((n, n, 3))
@@ -107,8 +109,16 @@ def slow_picture(bins, spacing, colors, opacity, unit_distance, view, background
             color, transmittance = np.zeros(3), 1.0
             for d in range(n):
                 sample = bins[SAMPLE_AT[view](r, c, d, n)]
-                alpha = 1.0 - (1.0 - opacity[sample]) ** (step / unit_distance)
-                color += transmittance * alpha * colors[sample]
+                following = bins[SAMPLE_AT[view](r, c, min(d + 1, n - 1), n)]
+                crossed = range(min(sample, following), max(sample, following) + 1)
+                # The crossed bins' light as one segment of mean extinction and extinction-weighted colour.
+                extinction = [-np.log(1.0 - opacity[b]) for b in crossed]
+                alpha = 1.0 - np.exp(-step / unit_distance * sum(extinction) / len(crossed))
+                if sum(extinction) > 0:
+                    mean_color = sum(e * colors[b] for e, b in zip(extinction, crossed)) / sum(extinction)
+                else:
+                    mean_color = colors[sample]
+                color += transmittance * alpha * mean_color
                 transmittance *= 1.0 - alpha
             picture[r, c] = color + transmittance * np.asarray(background)
     return np.rint(picture * 255.0)
@@ -171,6 +181,24 @@ def test_a_shell_one_voxel_thick_is_lit_like_a_ball(view):
     )  # fmt: skip
     # Within 0.7 of the radius a lit ball's shade is at least 0.3 + 0.7 * cos(asin(0.7)) = 0.8 (204 of 255).
     assert picture[radius_map(64) < 0.7 * 22, 0].min() >= 0.6 * 255
+
+
+@pytest.mark.parametrize("view", VIEWS_ALL_SIX)
+def test_a_skin_between_two_samples_is_drawn_where_the_rays_cross_it(view):
+    """A ball of bin 4 in air (bin 0), both clear, and only bin 2 shown: no sample is of bin 2, yet every ray into
+    the ball passes its values, as a ray through the full volume crosses the ball's partial-volume skin. The skin's
+    colour, where the rays cross it; the background elsewhere; and nothing where the crossed bins are all clear."""
+    preview = Preview(np.where(ball(16, 6.0) > 0, 4, 0), (1.0, 1.0, 1.0), 5)
+    colors = np.zeros((5, 3))
+    colors[2] = (1.0, 0.5, 0.0)
+    opacity = np.zeros(5)
+    opacity[2] = 0.9
+    picture = render_thumbnail(preview, colors, opacity, unit_distance=1.0, view=view, size=16, shading=False)
+    inside = radius_map(16) < 4.0
+    assert np.all(picture[inside, 0] > 0) and np.all(picture[inside, 2] == 0)  # orange, through 2 crossings
+    assert np.all(picture[radius_map(16) > 7.0] == 0)
+    opacity[2], opacity[4] = 0.0, 0.0
+    assert np.all(render_thumbnail(preview, colors, opacity, unit_distance=1.0, view=view, size=16) == 0)
 
 
 def test_a_transparent_transfer_function_shows_the_background():

@@ -7,6 +7,12 @@ neither VTK nor a GPU:
 * **Rays**: one per preview column along the view's axis, one nearest sample per voxel (bins are classes; an
   average of two bins would be a third tissue), composited front to back slice by slice with an explicit running
   transmittance: ``C += T * alpha * colour``, ``T *= 1 - alpha``.
+* **Pre-integrated segments** (Engel, Kraus & Ertl, "High-quality pre-integrated volume rendering using
+  hardware-accelerated pixel shading", 2001): the step from one sample to the next passes every bin between theirs,
+  as a ray through the full volume does, and takes their mean extinction and extinction-weighted colour. A preview
+  samples every few voxels, so the partial-volume skin of a structure (the rim a thin-structures look shows) lies
+  between two samples rather than on one: without it the skin of a plant's trunk, drawn whole by VTK, shows as
+  scattered dots. A homogeneous stretch is sampled as before.
 * **Opacity per unit distance**, as a ``vtkVolumeProperty``'s ``ScalarOpacityUnitDistance``: a sample of a step of
   ``d`` mm with scalar opacity ``a`` has ``alpha = 1 - (1 - a) ** (d / unit_distance)``.
 * **A headlight**: the normal is the gradient of the opacity field (each voxel's bin opacity), smoothed by a 3-tap
@@ -67,6 +73,8 @@ _LAYOUT = {
 }
 #: Headlight shading: ``AMBIENT + DIFFUSE * |n . view|`` (1 where the surface faces the camera).
 AMBIENT, DIFFUSE = 0.3, 0.7
+# Opacity 1 is an infinite extinction: a sample of it still passes 1e-9 of the light.
+_MAX_OPACITY = 1.0 - 1e-9
 # Opacity changes per voxel below this share of the largest opacity are rounding, not a surface: shade 1 there.
 _FLAT = 1e-6
 _MIN_SIZE = 8
@@ -120,12 +128,12 @@ def render_thumbnail(
     layout = _layout(view, directions)
     depth_axis, row_axis, col_axis = layout[0]
 
-    # A picture's worth of precision: single precision halves the time of every pass over the preview.
-    alpha = _sample_alpha(opacity, spacing_zyx[depth_axis] / unit_distance).astype(np.float32)[bins]
-    rgb = _oriented(np.clip(colors, 0.0, 1.0).astype(np.float32)[bins], layout)
+    alpha, rgb = _segments(
+        _oriented(bins, layout), opacity, np.clip(colors, 0.0, 1.0), spacing_zyx[depth_axis] / unit_distance
+    )
     if shading:
         rgb = rgb * _headlight(opacity.astype(np.float32)[bins], spacing_zyx, layout)[..., None]
-    weights, transmittance = _front_to_back(_oriented(alpha, layout))
+    weights, transmittance = _front_to_back(alpha)
     # The premultiplied colour and the transmittance are resampled, then laid over the background.
     composite = np.concatenate([np.einsum("drc,drck->rck", weights, rgb), transmittance[..., None]], axis=-1)
     picture = _fit(composite, spacing_zyx[row_axis], spacing_zyx[col_axis], int(size))
@@ -239,6 +247,31 @@ def _nearest_axes(directions: np.ndarray) -> tuple[list[int], list[bool]]:
 def _sample_alpha(opacity: np.ndarray, steps: float) -> np.ndarray:
     """``(n_bins,)`` alpha of one sample of each bin over ``steps`` unit distances."""
     return 1.0 - (1.0 - opacity) ** steps
+
+
+def _segments(bins: np.ndarray, opacity: np.ndarray, colors: np.ndarray, steps: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(depth, rows, columns)`` alpha and ``(..., 3)`` colour of the pre-integrated step from each sample of
+    ``bins`` (depth 0 nearest the camera) to the next (the last one's step stays in its bin), ``steps`` unit distances
+    long: the mean extinction ``-log(1 - opacity)`` over the bins between the two samples' (both included), and the
+    colour those bins give weighted by it (the front sample's colour where they are all clear). Single precision: a
+    picture's worth, and half the time of every pass over the preview."""
+    bins = np.ascontiguousarray(bins)  # the samples are written in place below, by their flat index
+    alpha = _sample_alpha(opacity, steps).astype(np.float32)[bins]
+    rgb = colors.astype(np.float32)[bins]
+    # Only the steps between two bins differ from a sample's own (a homogeneous stretch is sampled as before).
+    following = np.concatenate([bins[1:], bins[-1:]])
+    between = np.flatnonzero(bins != following)
+    front, back = bins.ravel()[between], following.ravel()[between]
+    low, high = np.minimum(front, back), np.maximum(front, back) + 1
+    extinction = -np.log1p(-np.minimum(opacity, _MAX_OPACITY))
+    summed = np.concatenate([[0.0], np.cumsum(extinction)])
+    depth = summed[high] - summed[low]
+    alpha.ravel()[between] = -np.expm1(-steps * depth / (high - low))
+    crossed = depth > 0
+    summed_color = np.concatenate([np.zeros((1, 3)), np.cumsum(extinction[:, None] * colors, axis=0)])
+    low, high, at = low[crossed], high[crossed], between[crossed]
+    rgb.reshape(-1, 3)[at] = (summed_color[high] - summed_color[low]) / depth[crossed, None]
+    return alpha, rgb
 
 
 def _oriented(volume: np.ndarray, layout: Layout) -> np.ndarray:
