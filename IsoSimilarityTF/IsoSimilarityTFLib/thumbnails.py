@@ -75,6 +75,9 @@ _LAYOUT = {
 AMBIENT, DIFFUSE = 0.3, 0.7
 # Opacity 1 is an infinite extinction: a sample of it still passes 1e-9 of the light.
 _MAX_OPACITY = 1.0 - 1e-9
+# A clear bin's weight in a pre-integrated step's colour: 500 times the rounding of a double-precision sum over 4096
+# bins of the largest extinction (-log(1e-9) = 20.7), so that a difference of two sums still resolves it.
+_CLEAR_WEIGHT = 1e-8
 # Opacity changes per voxel below this share of the largest opacity are rounding, not a surface: shade 1 there.
 _FLAT = 1e-6
 _MIN_SIZE = 8
@@ -253,25 +256,20 @@ def _segments(bins: np.ndarray, opacity: np.ndarray, colors: np.ndarray, steps: 
     """``(depth, rows, columns)`` alpha and ``(..., 3)`` colour of the pre-integrated step from each sample of
     ``bins`` (depth 0 nearest the camera) to the next (the last one's step stays in its bin), ``steps`` unit distances
     long: the mean extinction ``-log(1 - opacity)`` over the bins between the two samples' (both included), and the
-    colour those bins give weighted by it (the front sample's colour where they are all clear). Single precision: a
-    picture's worth, and half the time of every pass over the preview."""
-    bins = np.ascontiguousarray(bins)  # the samples are written in place below, by their flat index
-    alpha = _sample_alpha(opacity, steps).astype(np.float32)[bins]
-    rgb = colors.astype(np.float32)[bins]
-    # Only the steps between two bins differ from a sample's own (a homogeneous stretch is sampled as before).
-    following = np.concatenate([bins[1:], bins[-1:]])
-    between = np.flatnonzero(bins != following)
-    front, back = bins.ravel()[between], following.ravel()[between]
-    low, high = np.minimum(front, back), np.maximum(front, back) + 1
+    colour those bins give weighted by it. A step within one bin is that bin's sample, as without pre-integration.
+    Sums in double precision (a bin's extinction is a difference of two of them), the result in single: a picture's
+    worth, and half the time of every later pass."""
     extinction = -np.log1p(-np.minimum(opacity, _MAX_OPACITY))
-    summed = np.concatenate([[0.0], np.cumsum(extinction)])
-    depth = summed[high] - summed[low]
-    alpha.ravel()[between] = -np.expm1(-steps * depth / (high - low))
-    crossed = depth > 0
-    summed_color = np.concatenate([np.zeros((1, 3)), np.cumsum(extinction[:, None] * colors, axis=0)])
-    low, high, at = low[crossed], high[crossed], between[crossed]
-    rgb.reshape(-1, 3)[at] = (summed_color[high] - summed_color[low]) / depth[crossed, None]
-    return alpha, rgb
+    # Colours weigh a clear bin _CLEAR_WEIGHT: a step through clear bins alone (its alpha 0) gets their mean colour.
+    weight = extinction + _CLEAR_WEIGHT
+    summed, summed_weight = (np.concatenate([[0.0], np.cumsum(w)]) for w in (extinction, weight))
+    summed_color = np.concatenate([np.zeros((1, 3)), np.cumsum(weight[:, None] * colors, axis=0)])
+    following = np.concatenate([bins[1:], bins[-1:]])
+    low, high = np.minimum(bins, following), np.maximum(bins, following) + 1
+    alpha = -np.expm1(-steps * (np.take(summed, high) - np.take(summed, low)) / (high - low))
+    rgb = np.take(summed_color, high, axis=0) - np.take(summed_color, low, axis=0)
+    rgb /= (np.take(summed_weight, high) - np.take(summed_weight, low))[..., None]
+    return alpha.astype(np.float32), rgb.astype(np.float32)
 
 
 def _oriented(volume: np.ndarray, layout: Layout) -> np.ndarray:
