@@ -55,6 +55,27 @@ def test_a_low_class_is_fog_only_when_its_tissue_lies_at_the_background_too(gap,
     assert class_roles(classes, np.array([0, 1, 1]), np.array([0.0, 2.0, gap]), 1.0)[1] == role
 
 
+def air_around_a_tube(below=0):
+    """Roles of: ethanol, the background (bin 40); the air's noise tissue below it (its largest class 3 noise widths
+    down, its tail 6); the specimen above (bin 100); and ``below`` voxels of a tissue of their own far below (bin 0)."""
+    classes = make_classes([50_000, 20_000, 8_000, 5_000, below])
+    return class_roles(classes, np.array([0, 1, 1, 2, 3]), np.array([40.0, 37.0, 34.0, 100.0, 0.0]), 1.0)
+
+
+def test_the_tail_of_noise_on_the_side_of_no_structure_is_fog_however_far_out():
+    # A micro-CT's tube of ethanol in air: the air lies 3 noise widths below the ethanol, its lower half 6.
+    assert air_around_a_tube()[:4] == ["background", "fog", "fog", "dense"]
+
+
+@pytest.mark.parametrize("factor, role", [(0.95, "fog"), (1.05, "bulk")])
+def test_a_real_structure_beyond_the_noise_keeps_its_tail_apart(factor, role):
+    # A tissue below the air holding a real share of the voxels is a structure there: the air's tail stays shown
+    # (a stray few voxels are not).
+    share = factor * RULES.real_share
+    below = round(share * 33_000 / (1.0 - share))
+    assert air_around_a_tube(below)[2] == role
+
+
 @pytest.mark.parametrize("contact, role", [(RULES.rim_contact - 0.01, "bulk"), (RULES.rim_contact + 0.01, "fog")])
 def test_a_low_class_mostly_touching_the_background_is_fog_in_any_tissue(contact, role):
     # Noise scattered in the air touches it: fog, even when the intensity model put it in a tissue apart.

@@ -13,8 +13,11 @@ Roles, in the order they are decided (the first that applies):
   largest class stands apart from the background, which does not touch it, is that tissue's darker part or partial
   volume (the outer cortex of a skull-stripped brain), not noise. Whether a tissue lies at the background's
   intensity is counted in the background's noise (:func:`fog_width`): a background of one stored value has none, and
-  the tissue next to it is then measured by the voxels' noise (a flame's faint envelope around its empty space). No
-  look shows fog.
+  the tissue next to it is then measured by the voxels' noise (a flame's faint envelope around its empty space).
+  Where every structure (a real tissue not at the background's intensity) lies on one side of the background, a
+  class of a tissue at the background's intensity on the other side is fog however far out it lies
+  (:func:`beyond_structures`): it is that noise's tail, with nothing beyond it (the air around a micro-CT's tube of
+  ethanol, the ethanol the background). No look shows fog.
 - ``"dense"``: a class whose mean lies :attr:`LookRules.dense_separation` noise widths above the *main material*,
   in a real tissue: bone or contrast in soft tissue, the parts inside a housing, the core of a vessel, a bright
   lesion (widths of the intensity model on CT-like data, of the voxels' noise where smaller on other data: see
@@ -218,12 +221,14 @@ def class_roles(
     distance = np.abs(class_bins - background_bin)
     near = distance < rules.fog_separation * noise_sd
     at_background = distance < rules.fog_separation * (noise_sd if fog_sd is None else fog_sd)
+    peaks = np.array([largest_class(tissue_of_class, voxels, t) for t in range(int(tissue_of_class.max()) + 1)])
+    tissue_at_background = at_background[peaks][tissue_of_class]
+    beyond = beyond_structures(classes, tissue_of_class, class_bins, ~at_background[peaks], rules)
     roles = []
     for c in classes:
-        tissue_at_background = at_background[largest_class(tissue_of_class, voxels, tissue_of_class[c.id])]
         if c.background:
             roles.append("background")
-        elif (at_background[c.id] and tissue_at_background) or (
+        elif ((at_background[c.id] or beyond[c.id]) and tissue_at_background[c.id]) or (
             near[c.id] and c.background_contact > rules.rim_contact
         ):
             roles.append("fog")
@@ -234,6 +239,33 @@ def class_roles(
         else:
             roles.append("bulk")
     return roles
+
+
+def beyond_structures(
+    classes: Sequence[IsovalueClass],
+    tissue_of_class: np.ndarray,
+    class_bins: np.ndarray,
+    apart: np.ndarray,
+    rules: LookRules = RULES,
+) -> np.ndarray:
+    """``(n_classes,)`` whether each class lies on the other side of the background's mean bin from every structure:
+    a class of a real tissue (:attr:`LookRules.real_share` of the non-background voxels) that stands ``apart`` from
+    the background's intensity. All False without a background or a structure.
+
+    Args:
+        classes: the classes, in id order. tissue_of_class: ``(n_classes,)`` tissue id per class.
+        class_bins: ``(n_classes,)`` mean bin per class. apart: ``(n_tissues,)`` whether each tissue's largest class
+            lies apart from the background's intensity.
+    """
+    background = next((c.id for c in classes if c.background), None)
+    counted = np.array([0.0 if c.background else float(c.voxels) for c in classes])
+    tissue_voxels = np.bincount(tissue_of_class, weights=counted, minlength=np.asarray(apart).size)
+    structure = ((tissue_voxels >= rules.real_share * counted.sum()) & np.asarray(apart, dtype=bool))[tissue_of_class]
+    if background is None or not structure.any():
+        return np.zeros(len(classes), dtype=bool)
+    side = np.sign(np.asarray(class_bins, dtype=np.float64) - class_bins[background])
+    sides = set(side[structure].tolist())
+    return np.array([len(sides) == 1 and -s in sides for s in side], dtype=bool)
 
 
 def largest_class(tissue_of_class: np.ndarray, voxels: np.ndarray, tissue: int) -> int:
