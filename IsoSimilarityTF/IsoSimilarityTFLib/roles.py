@@ -221,9 +221,8 @@ def class_roles(
     distance = np.abs(class_bins - background_bin)
     near = distance < rules.fog_separation * noise_sd
     at_background = distance < rules.fog_separation * (noise_sd if fog_sd is None else fog_sd)
-    peaks = np.array([largest_class(tissue_of_class, voxels, t) for t in range(int(tissue_of_class.max()) + 1)])
-    tissue_at_background = at_background[peaks][tissue_of_class]
-    beyond = beyond_structures(classes, tissue_of_class, class_bins, ~at_background[peaks], rules)
+    tissue_at_background = at_background[[largest_class(tissue_of_class, voxels, t) for t in tissue_of_class]]
+    beyond = beyond_structures(classes, tissue_of_class, class_bins, ~tissue_at_background, rules)
     roles = []
     for c in classes:
         if c.background:
@@ -249,23 +248,25 @@ def beyond_structures(
     rules: LookRules = RULES,
 ) -> np.ndarray:
     """``(n_classes,)`` whether each class lies on the other side of the background's mean bin from every structure:
-    a class of a real tissue (:attr:`LookRules.real_share` of the non-background voxels) that stands ``apart`` from
-    the background's intensity. All False without a background or a structure.
+    a class of a real tissue (:attr:`LookRules.real_share` of the non-background voxels) whose largest class stands
+    apart from the background's intensity. All False without a background, or with structures on both sides.
 
     Args:
         classes: the classes, in id order. tissue_of_class: ``(n_classes,)`` tissue id per class.
-        class_bins: ``(n_classes,)`` mean bin per class. apart: ``(n_tissues,)`` whether each tissue's largest class
-            lies apart from the background's intensity.
+        class_bins: ``(n_classes,)`` mean bin per class. apart: ``(n_classes,)`` whether each class's tissue stands
+            apart from the background's intensity (its largest class does).
     """
     background = next((c.id for c in classes if c.background), None)
-    counted = np.array([0.0 if c.background else float(c.voxels) for c in classes])
-    tissue_voxels = np.bincount(tissue_of_class, weights=counted, minlength=np.asarray(apart).size)
-    structure = ((tissue_voxels >= rules.real_share * counted.sum()) & np.asarray(apart, dtype=bool))[tissue_of_class]
-    if background is None or not structure.any():
+    if background is None:
         return np.zeros(len(classes), dtype=bool)
+    counted = np.array([0.0 if c.background else float(c.voxels) for c in classes])
+    tissue_voxels = np.bincount(tissue_of_class, weights=counted)
+    structure = (tissue_voxels[tissue_of_class] >= rules.real_share * counted.sum()) & np.asarray(apart, dtype=bool)
     side = np.sign(np.asarray(class_bins, dtype=np.float64) - class_bins[background])
-    sides = set(side[structure].tolist())
-    return np.array([len(sides) == 1 and -s in sides for s in side], dtype=bool)
+    structure_sides = np.unique(side[structure])
+    if structure_sides.size != 1 or structure_sides[0] == 0:
+        return np.zeros(len(classes), dtype=bool)
+    return side == -structure_sides[0]
 
 
 def largest_class(tissue_of_class: np.ndarray, voxels: np.ndarray, tissue: int) -> int:
