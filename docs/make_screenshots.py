@@ -21,9 +21,10 @@ ROOT = Path(__file__).resolve().parents[1]
 SHOTS = ROOT / "Resources" / "Screenshots"
 TOOL = Path(sys.executable).with_name("isosimtf")
 #: make compare's montages the README shows: the head CT in two storages, a volume whose first click loses where a
-#: look of the gallery keeps up (the stroke FLAIR), and one where we lose (the heptane flame).
+#: look of the gallery keeps up (the stroke FLAIR), one where we lose (the heptane flame), and thin structures in the
+#: open as a first click (the synthetic plant, whose twigs no preset shows).
 COMPARE_PICTURES = ROOT / "benchmarks" / "results" / "pictures"
-COMPARE_MONTAGES = ("head-ct", "head-ct-8bit", "mr-brain-stroke-flair", "sim-heptane")
+COMPARE_MONTAGES = ("head-ct", "head-ct-8bit", "mr-brain-stroke-flair", "sim-heptane", "plant-ct")
 
 
 def main() -> None:
