@@ -45,7 +45,7 @@ import numpy as np
 from .classes import PALETTE, IsovalueClass
 from .look import BACKGROUND_GREY, bin_opacity_of, default_look
 from .options import LOOK_NAMES
-from .roles import RULES, LookRules, class_roles, fog_width, noise_width, tissue_mean_bins
+from .roles import RULES, LookRules, class_roles, fog_width, in_real_tissue, noise_width, tissue_mean_bins
 from .thumbnails import ray_visibility  # check_look's independent ray caster: an oracle, not the fast path
 from .visibility import Preview, surroundings_fill, visibility_histogram
 
@@ -643,9 +643,8 @@ def check_look(context: LookContext, look: GalleryLook) -> list[str]:
 def _densest_real_tissue(context: LookContext) -> Optional[int]:
     """The densest tissue holding ``rules.real_share`` of the non-background voxels (as :func:`.look.default_look`
     counts them), or None."""
-    counted = np.array([0 if c.background else c.voxels for c in context.classes], dtype=np.float64)
-    tissue_voxels = np.bincount(context.tissue_of_class, weights=counted, minlength=context.n_tissues)
-    real = np.flatnonzero(tissue_voxels >= context.rules.real_share * max(tissue_voxels.sum(), 1))
+    tissue_of_class = np.asarray(context.tissue_of_class)
+    real = np.unique(tissue_of_class[in_real_tissue(context.classes, tissue_of_class, context.rules)])
     if real.size == 0:
         return None
     voxels = np.array([c.voxels for c in context.classes], dtype=np.float64)

@@ -259,14 +259,22 @@ def beyond_structures(
     background = next((c.id for c in classes if c.background), None)
     if background is None:
         return np.zeros(len(classes), dtype=bool)
-    counted = np.array([0.0 if c.background else float(c.voxels) for c in classes])
-    tissue_voxels = np.bincount(tissue_of_class, weights=counted)
-    structure = (tissue_voxels[tissue_of_class] >= rules.real_share * counted.sum()) & np.asarray(apart, dtype=bool)
+    structure = in_real_tissue(classes, tissue_of_class, rules) & np.asarray(apart, dtype=bool)
     side = np.sign(np.asarray(class_bins, dtype=np.float64) - class_bins[background])
     structure_sides = np.unique(side[structure])
     if structure_sides.size != 1 or structure_sides[0] == 0:
         return np.zeros(len(classes), dtype=bool)
     return side == -structure_sides[0]
+
+
+def in_real_tissue(
+    classes: Sequence[IsovalueClass], tissue_of_class: np.ndarray, rules: LookRules = RULES
+) -> np.ndarray:
+    """``(n_classes,)`` whether each class belongs to a real tissue: one holding :attr:`LookRules.real_share` of the
+    non-background voxels (none when there are none)."""
+    counted = np.array([0.0 if c.background else float(c.voxels) for c in classes])
+    tissue_voxels = np.bincount(tissue_of_class, weights=counted)
+    return tissue_voxels[tissue_of_class] >= rules.real_share * max(counted.sum(), 1.0)
 
 
 def largest_class(tissue_of_class: np.ndarray, voxels: np.ndarray, tissue: int) -> int:
@@ -300,7 +308,7 @@ def dense_classes(
     total = tissue_voxels.sum()
     if total <= 0:
         return []
-    real = tissue_voxels[tissue_of_class] >= rules.real_share * total
+    real = in_real_tissue(classes, tissue_of_class, rules)
     main = main_material_bin(voxels * foreground, tissue_voxels, tissue_bin, class_bins)
     above = class_bins >= main + rules.dense_separation * noise_sd
     if not foreground.all():
