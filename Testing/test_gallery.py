@@ -23,7 +23,6 @@ from IsoSimilarityTFLib.gallery import (
     gallery,
     is_thin,
     make_look,
-    rim_in_the_open,
 )
 from IsoSimilarityTFLib.look import SHOWN_PLACE, bin_opacity_of, ramp_colors
 from IsoSimilarityTFLib.roles import RULES, class_roles, dense_classes, fog_width, is_constant_background, noise_width
@@ -832,8 +831,8 @@ def skinned_twigs_context(twigs, rules=RULES):
 def test_a_rim_that_is_a_surfaces_skin_gives_no_thin_structures_look():
     context = skinned_twigs_context(twigs=0)
     assert context.roles == ["background", "rim", "bulk"] and not is_thin(context)
-    assert not rim_in_the_open(context) and make_look("thin-structures", context) is None
-    assert rim_in_the_open(twigs_context()) and make_look("thin-structures", twigs_context()) is not None
+    assert not context.rim_in_the_open and make_look("thin-structures", context) is None
+    assert twigs_context().rim_in_the_open and make_look("thin-structures", twigs_context()) is not None
 
 
 @pytest.mark.parametrize("factor, offered", [(0.95, False), (1.05, True)])
@@ -842,7 +841,7 @@ def test_thin_structures_beside_other_objects_are_offered_where_the_rim_lies_alo
     fill = surroundings_fill(twigs_context().preview, np.arange(40) == 15, np.arange(40) >= 5)
     assert 0 < fill <= 1 / SURROUNDINGS**2
     context = twigs_context(dataclasses.replace(RULES, line_fill=fill * factor))
-    assert rim_in_the_open(context) is offered
+    assert context.rim_in_the_open is offered
     assert (make_look("thin-structures", context) is not None) is offered
 
 
@@ -871,7 +870,7 @@ def test_thin_structures_alone_are_shown_whatever_their_rims_shape():
         tissue_of_class=np.arange(3), class_values=class_bins, class_bins=class_bins, labels=labels, noise_sd=1.0,
         preview=Preview(bins, (5.0, 5.0, 5.0), 40), kind="mr",
     )  # fmt: skip
-    assert is_thin(context) and not rim_in_the_open(context)
+    assert is_thin(context) and not context.rim_in_the_open
     assert make_look("thin-structures", context) is not None
 
 

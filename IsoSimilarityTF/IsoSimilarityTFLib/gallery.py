@@ -28,8 +28,8 @@ name                what it shows                                            off
 
 The first click is ``thin-structures`` for thin structures alone in an empty field of view (:func:`is_thin`: a
 vessel tree exported with 95-99 % zeros) and, on data that are not CT-like, beside other objects where the rim lies
-along lines in the open (:func:`rim_in_the_open`: a plant's twigs), else ``dense-parts`` on CT-like data
-(:func:`.look.detect_kind`), else ``outer-surface``; a look whose transfer function equals an earlier one is left
+along lines in the open (:attr:`LookContext.rim_in_the_open`: a plant's twigs), else ``dense-parts`` on CT-like
+data (:func:`.look.detect_kind`), else ``outer-surface``; a look whose transfer function equals an earlier one is left
 out. Each look states its *promise*, the share of the picture some roles give (measured by the visibility histogram
 of :mod:`.visibility`); :func:`check_look` measures it again with an independent ray caster
 (:func:`.thumbnails.ray_visibility`).
@@ -38,6 +38,7 @@ of :mod:`.visibility`); :func:`check_look` measures it again with an independent
 import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Callable, Optional
 
 import numpy as np
@@ -120,6 +121,19 @@ class LookContext:
     def n_tissues(self) -> int:
         return int(self.tissue_of_class.max()) + 1 if self.tissue_of_class.size else 0
 
+    @cached_property
+    def rim_in_the_open(self) -> bool:
+        """Whether the rim holds structures of its own: a real share of the objects' voxels
+        (:attr:`.LookRules.real_share` of those not background or fog) lying in the open, along lines
+        (:attr:`.LookRules.line_fill`), not as the skin of a body (False without a preview: nothing measured). Measured
+        once: the first click and the thin-structures look both ask."""
+        rim = self.of_role("rim")
+        voxels = np.array([c.voxels for c in self.classes], dtype=np.float64)
+        objects = ~self.of_role("background", "fog")
+        if self.preview is None or voxels[rim].sum() < self.rules.real_share * max(voxels[objects].sum(), 1.0):
+            return False
+        return surroundings_fill(self.preview, rim[self.labels], objects[self.labels]) < self.rules.line_fill
+
     @property
     def fog_sd(self) -> float:
         """The width, in bins, fog is decided in (:func:`.roles.fog_width`)."""
@@ -186,9 +200,9 @@ def first_look_name(context: LookContext) -> str:
     """The first click's look: ``thin-structures`` for thin structures alone in an empty field of view (a vessel tree
     exported with 95-99 % zeros: most of the objects' voxels are rim, and they fill at most
     :attr:`.LookRules.thin_foreground` of the volume), and on data that are not CT-like where the rim lies along lines
-    in the open (:func:`rim_in_the_open`: a plant's twigs, which the outer surface clears as if they were a skin);
-    else ``dense-parts`` on CT-like data and ``outer-surface``."""
-    if is_thin(context) or (context.kind != "ct" and rim_in_the_open(context)):
+    in the open (:attr:`LookContext.rim_in_the_open`: a plant's twigs, which the outer surface clears as if they were
+    a skin); else ``dense-parts`` on CT-like data and ``outer-surface``."""
+    if is_thin(context) or (context.kind != "ct" and context.rim_in_the_open):
         return "thin-structures"
     return "dense-parts" if context.kind == "ct" else "outer-surface"
 
@@ -204,19 +218,6 @@ def is_thin(context: LookContext) -> bool:
         return False
     rim = voxels[context.of_role("rim")].sum()
     return bool(rim >= context.rules.thin_rim_share * objects and objects <= context.rules.thin_foreground * total)
-
-
-def rim_in_the_open(context: LookContext) -> bool:
-    """Whether the rim holds structures of its own: a real share of the objects' voxels (:attr:`.LookRules.real_share`
-    of those not background or fog) lying in the open, along lines (:attr:`.LookRules.line_fill`), not as the skin of
-    a body (False without a preview: nothing measured)."""
-    rim = context.of_role("rim")
-    voxels = np.array([c.voxels for c in context.classes], dtype=np.float64)
-    objects = ~context.of_role("background", "fog")
-    if context.preview is None or voxels[rim].sum() < context.rules.real_share * max(voxels[objects].sum(), 1.0):
-        return False
-    fill = surroundings_fill(context.preview, rim[context.labels], objects[context.labels])
-    return fill < context.rules.line_fill
 
 
 def gallery(context: LookContext) -> list[GalleryLook]:
@@ -502,8 +503,9 @@ def _thin_structures(context: LookContext) -> Made:
     intensity, in the densest shown class's colour) over the default look, everything else made clearer until the
     rim gives ``rules.thin_share`` of the picture (:func:`_cleared_around`): twigs are thin and sparse, and a pot
     left as the default look has it takes the picture of them. Made for thin structures alone (:func:`is_thin`), or
-    beside other objects where the rim lies in the open (:func:`rim_in_the_open`), not as a surface's skin."""
-    if not is_thin(context) and not rim_in_the_open(context):
+    beside other objects where the rim lies in the open (:attr:`LookContext.rim_in_the_open`), not as a surface's
+    skin."""
+    if not is_thin(context) and not context.rim_in_the_open:
         return None
     rim = context.of_role("rim")
     colors, opacities, visible = _default(context, context.kind)
