@@ -228,11 +228,14 @@ def _first_click(case):
     return next(row for row in case["looks"] if row["first_click"])
 
 
-@pytest.mark.parametrize("original, clipped", [("phantom-hu", "phantom-clipped"), ("head-ct-hu", "head-ct-clipped")])
-def test_hu_clipped_at_0_gives_nearly_the_first_click_of_its_original(original, clipped):
+@pytest.mark.parametrize(
+    "original, clipped",
+    [("phantom-hu", "phantom-clipped"), ("head-ct-hu", "head-ct-clipped"), ("micro-ct", "micro-ct-8bit")],
+)
+def test_a_lossy_storage_gives_nearly_the_first_click_of_its_original(original, clipped):
     # The clipped storage turns everything below 94 HU into background: the original's first click must not keep the
     # soft tissue as a veil the clipped one cannot show (0.29 of the picture apart when the dense parts were promised
-    # half of it).
+    # half of it). The micro-CT's 8-bit export through a window saturates its densest voxels.
     shares = [_first_click(_measured(key))["scanned_for"] for key in (original, clipped)]
     assert abs(shares[0] - shares[1]) <= 0.15, shares
 
@@ -241,10 +244,8 @@ def test_a_micro_ct_exported_through_a_window_shows_no_air_in_any_look():
     # The air around the tube lies 3 noise widths below the ethanol (the background); in the 8-bit export its lower
     # half lay just past 4, and every look but the first click drew it (0.30-0.41 of the picture): nothing lies
     # beyond it on that side, so it is the air's noise, fog.
-    windowed, original = _measured("micro-ct-8bit"), _measured("micro-ct")
+    windowed = _measured("micro-ct-8bit")
     assert all(row["fog"] <= 0.01 for row in windowed["looks"]), [(r["look"], r["fog"]) for r in windowed["looks"]]
-    shares = [_first_click(case)["scanned_for"] for case in (windowed, original)]
-    assert abs(shares[0] - shares[1]) <= 0.15, shares
 
 
 @pytest.mark.parametrize(
