@@ -168,8 +168,10 @@ def test_the_noise_width_is_the_models_on_ct_and_the_smaller_voxel_noise_on_othe
     assert noise_width("mr", 20.0, None) == 20.0  # a design saved before the voxels' noise was measured
 
 
-def test_a_tissue_is_at_the_background_in_the_voxels_noise_on_ct_whose_background_is_one_value():
-    assert fog_width("ct", 20.0, 8.0, constant_background=False) == 20.0  # noisy air: the model's width
+def test_on_ct_a_tissue_is_at_the_background_in_the_voxels_noise_where_that_is_one_value_or_wider():
+    assert fog_width("ct", 20.0, 8.0, constant_background=False) == 20.0  # noisy air: the wider of the two
+    assert fog_width("ct", 3.5, 10.8, constant_background=False) == 10.8  # the model fits the air's tails narrower
+    assert fog_width("ct", 20.0, None, constant_background=False) == 20.0
     assert fog_width("ct", 20.0, 8.0, constant_background=True) == 8.0  # one stored value: no noise of its own
     assert fog_width("mr", 20.0, 8.0, constant_background=False) == 8.0
     assert fog_width("ct", 20.0, None, constant_background=True) == 20.0  # a design saved before it was measured

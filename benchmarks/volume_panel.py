@@ -19,8 +19,9 @@ density instead ("dense" = at least 300 HU, the bone and contrast that CT preset
   also exported to 8 bits through a window (:func:`windowed_8bit`), as micro-CT software exports it.
   Then the kinds users bring that ``../shared/data`` lacks, each built in numpy with its truth:
   :func:`synthetic_angiogram` (vessel trees only, thresholded, 95-99% zeros; large and small vessels),
-  :func:`synthetic_specimen` (micro-CT of trabecular bone at 0.05 mm), :func:`synthetic_housing` (industrial CT:
-  steel parts inside an aluminium housing), :func:`synthetic_plant` (a tree in a pot, twigs below a voxel),
+  :func:`synthetic_specimen` (micro-CT of trabecular bone at 0.05 mm; also exported to 8 bits through an
+  auto-contrast window), :func:`synthetic_housing` (industrial CT: steel parts inside an aluminium housing),
+  :func:`synthetic_plant` (a tree in a pot, twigs below a voxel),
   :func:`contrast_ct_8bit` (an 8-bit export of a contrast chest CT), :func:`synthetic_abdomen_ct` (an abdomen-pelvis
   CT in int32 HU, 3 mm slices, on its table) and :func:`synthetic_abdomen_mri` (an abdominal T1 slab with coil
   shading and Rician noise).
@@ -235,16 +236,20 @@ def synthetic_micro_ct(size: int = 128, seed: int = 0) -> tuple[np.ndarray, tupl
     return stored, _grid((step, step, step)), labels, names, None
 
 
-def windowed_8bit(load: Callable[[], tuple], top_percentile: float = 99.9) -> Callable[[], tuple]:
-    """``load`` with its values exported to 8 bits through a window from the lowest stored value to the
-    ``top_percentile``-th, clipped above: how micro-CT software exports an 8-bit volume (a window chosen on the
-    histogram, the densest voxels saturated; the micro-CT skulls issue 24 kept aside were 8-bit). Labels and names
-    unchanged; no HU map."""
+def windowed_8bit(
+    load: Callable[[], tuple], top_percentile: float = 99.9, bottom_percentile: float | None = None
+) -> Callable[[], tuple]:
+    """``load`` with its values exported to 8 bits through a window from the lowest stored value (or the
+    ``bottom_percentile``-th) to the ``top_percentile``-th, clipped outside: how micro-CT software exports an 8-bit
+    volume (a window chosen on the histogram, the densest voxels saturated; the micro-CT skulls issue 24 kept aside
+    were 8-bit), or an auto-contrast window (0.5th to 99.5th percentile: the air's lowest noise saturated too).
+    Labels and names unchanged; no HU map."""
 
     def exported() -> tuple:
         values, ijk_to_ras, labels, names, _storage = load()
         values = np.asarray(values, dtype=np.float64)
-        low, high = float(values.min()), float(np.percentile(values, top_percentile))
+        low = float(values.min() if bottom_percentile is None else np.percentile(values, bottom_percentile))
+        high = float(np.percentile(values, top_percentile))
         stored = np.round(np.clip((values - low) / (high - low), 0.0, 1.0) * 255.0).astype(np.uint8)
         return stored, ijk_to_ras, labels, names, None
 
@@ -995,6 +1000,9 @@ PANEL: tuple[PanelVolume, ...] = (
                 ("large vessels", "small vessels"), None, _always, "synthetic vessel trees, 0.5 mm"),
     PanelVolume("specimen-ct", "Micro-CT of a bone specimen, 0.05 mm, uint16 (synthetic)", "micro-CT",
                 synthetic_specimen, ("bone",), "air", _always, "synthetic trabecular bone on a holder"),
+    PanelVolume("specimen-ct-8bit", "Micro-CT of a bone specimen, 8-bit auto-contrast export (synthetic)", "micro-CT",
+                windowed_8bit(synthetic_specimen, 99.5, 0.5), ("bone",), "air", _always,
+                "synthetic, exported to 8 bits from its 0.5th to its 99.5th percentile"),
     PanelVolume("housing-ct", "Industrial CT, steel parts in an aluminium housing, float32 (synthetic)", "industrial",
                 synthetic_housing, ("parts",), "air", _always, "synthetic, 0.4 mm"),
     PanelVolume("plant-ct", "Plant CT, a tree in a pot, 8-bit (synthetic)", "plant", synthetic_plant, ("branches",),
@@ -1037,4 +1045,5 @@ VARIANT_GROUPS: dict[str, tuple[str, ...]] = {
     "chest CTA clipped at 0 HU": ("cta-chest", "cta-chest-clipped"),
     "phantom voxel size": ("phantom-hu", *(f"phantom-x{scale:g}" for scale in VOXEL_SIZE_SCALES)),
     "micro-CT storages": ("micro-ct", "micro-ct-8bit"),
+    "specimen storages": ("specimen-ct", "specimen-ct-8bit"),
 }

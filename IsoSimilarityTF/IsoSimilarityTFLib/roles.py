@@ -13,7 +13,8 @@ Roles, in the order they are decided (the first that applies):
   largest class stands apart from the background, which does not touch it, is that tissue's darker part or partial
   volume (the outer cortex of a skull-stripped brain), not noise. Whether a tissue lies at the background's
   intensity is counted in the background's noise (:func:`fog_width`): a background of one stored value has none, and
-  the tissue next to it is then measured by the voxels' noise (a flame's faint envelope around its empty space).
+  the tissue next to it is then measured by the voxels' noise (a flame's faint envelope around its empty space);
+  noisy air on CT-like data is at least as wide as the voxels' noise (the model may fit its tails narrower).
   Where every structure (a real tissue not at the background's intensity) lies on one side of the background, a
   class of a tissue at the background's intensity on the other side is fog however far out it lies
   (:func:`beyond_structures`): it is that noise's tail, with nothing beyond it (the air around a micro-CT's tube of
@@ -162,12 +163,22 @@ def noise_width(kind: str, noise_sd: float, voxel_noise_sd: Optional[float]) -> 
 def fog_width(kind: str, noise_sd: float, voxel_noise_sd: Optional[float], constant_background: bool) -> float:
     """The background's noise, in bins: the width in which a tissue lies at the background's intensity (the fog
     rule's tissue clause, :attr:`LookRules.fog_separation`) and above which a skin's partial volume starts
-    (:attr:`LookRules.ramp_start`). It is :func:`noise_width`, except on CT-like data whose background is one stored
-    value (``constant_background``, :func:`is_constant_background`: air set to 0 by an export, a clip or a mask; a
-    simulation's empty space). That background has no noise, and the intensity model's width of the tissue next to it
-    is the tissue's own spread of values (a flame's envelope fading into empty space), not noise: the voxels' noise
-    measures it, as on other data. Noise scattered in the air (a class touching the background) is still judged in
-    :func:`noise_width`: a zeroed MRI's leftover noise is that."""
+    (:attr:`LookRules.ramp_start`). It is :func:`noise_width`, except on CT-like data:
+
+    - whose background is one stored value (``constant_background``, :func:`is_constant_background`: air set to 0 by
+      an export, a clip or a mask; a simulation's empty space). That background has no noise, and the intensity
+      model's width of the tissue next to it is the tissue's own spread of values (a flame's envelope fading into
+      empty space), not noise: the voxels' noise measures it, as on other data;
+    - whose background is noisy air: the wider of the model's width and the voxels' noise. The model's one width is
+      that of its narrowest peak, and where it cuts the air's noise into tails around the background class (a
+      specimen exported through an auto-contrast window, the background class in the middle of the air), it fits
+      each tail as a tissue a third as wide as the noise, 3.5 bins against the voxels' 10.8: the air's upper tail
+      then lay 5 model widths up and was shown as thin structures. The voxels measure the noise itself.
+
+    Noise scattered in the air (a class touching the background) is still judged in :func:`noise_width`: a zeroed
+    MRI's leftover noise is that."""
+    if kind == "ct" and not constant_background and voxel_noise_sd is not None:
+        return max(noise_sd, voxel_noise_sd)
     return noise_width("mr" if constant_background else kind, noise_sd, voxel_noise_sd)
 
 
