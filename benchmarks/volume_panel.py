@@ -23,7 +23,8 @@ density instead ("dense" = at least 300 HU, the bone and contrast that CT preset
   auto-contrast window), :func:`synthetic_housing` (industrial CT: steel parts inside an aluminium housing),
   :func:`synthetic_plant` (a tree in a pot, twigs below a voxel),
   :func:`contrast_ct_8bit` (an 8-bit export of a contrast chest CT), :func:`synthetic_abdomen_ct` (an abdomen-pelvis
-  CT in int32 HU, 3 mm slices, on its table) and :func:`synthetic_abdomen_mri` (an abdominal T1 slab with coil
+  CT in int32 HU, 3 mm slices, on its table; also exported to 8 bits through the chest CT's window,
+  :func:`hu_windowed_8bit`) and :func:`synthetic_abdomen_mri` (an abdominal T1 slab with coil
   shading and Rician noise).
 - **The ten real volumes of ../shared/data** (:data:`REAL_VOLUMES`, when the folder is there; never copied into the
   repository): their labels are the README's "band scanned for" as value bands (:func:`band_labels`). A reading, not
@@ -252,6 +253,21 @@ def windowed_8bit(
         high = float(np.percentile(values, top_percentile))
         stored = np.round(np.clip((values - low) / (high - low), 0.0, 1.0) * 255.0).astype(np.uint8)
         return stored, ijk_to_ras, labels, names, None
+
+    return exported
+
+
+def hu_windowed_8bit(load: Callable[[], tuple], window_hu: tuple[float, float]) -> Callable[[], tuple]:
+    """``load`` (a CT whose storage map gives HU) exported to 8 bits through a viewer's window, ``(low, high)`` HU
+    linear to 0..255 and clipped outside, as :func:`contrast_ct_8bit` is. Labels and names unchanged; the storage
+    map is the window's (presets are mapped onto the stored values)."""
+
+    def exported() -> tuple:
+        values, ijk_to_ras, labels, names, (scale, offset) = load()
+        hu = (np.asarray(values, dtype=np.float64) - offset) / scale
+        low, per_hu = window_hu[0], 255.0 / (window_hu[1] - window_hu[0])
+        stored = np.round(np.clip((hu - low) * per_hu, 0.0, 255.0)).astype(np.uint8)
+        return stored, ijk_to_ras, labels, names, (per_hu, -low * per_hu)
 
     return exported
 
@@ -1011,6 +1027,9 @@ PANEL: tuple[PanelVolume, ...] = (
                 ("blood pool", "bone"), "air", _always, "synthetic, window 300 / 1400 HU"),
     PanelVolume("abdomen-ct", "Abdomen-pelvis CT, int32 HU, 3 mm slices (synthetic)", "CT", synthetic_abdomen_ct,
                 ("bone",), "air", _always, "synthetic, on its table"),
+    PanelVolume("abdomen-ct-8bit", "Abdomen-pelvis CT, 8-bit export through a 300 / 1400 HU window (synthetic)", "CT",
+                hu_windowed_8bit(synthetic_abdomen_ct, CHEST_WINDOW_HU), ("bone",), "air", _always,
+                "synthetic, on its table, exported as the 8-bit chest CT (window level 300, width 1400 HU)"),
     PanelVolume("abdomen-mri", "Abdominal T1 MRI slab, 6 mm slices (synthetic)", "MRI", synthetic_abdomen_mri,
                 ("organs",), "air", _always, "synthetic, coil shading and Rician noise"),
     *(
@@ -1046,4 +1065,5 @@ VARIANT_GROUPS: dict[str, tuple[str, ...]] = {
     "phantom voxel size": ("phantom-hu", *(f"phantom-x{scale:g}" for scale in VOXEL_SIZE_SCALES)),
     "micro-CT storages": ("micro-ct", "micro-ct-8bit"),
     "specimen storages": ("specimen-ct", "specimen-ct-8bit"),
+    "abdomen CT storages": ("abdomen-ct", "abdomen-ct-8bit"),
 }
