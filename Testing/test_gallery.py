@@ -473,6 +473,47 @@ def test_the_see_through_look_shows_every_dense_part_as_a_surface(opacity_high):
     assert look.opacities[2] == pytest.approx(opacity_high) and look.opacities[3] == pytest.approx(opacity_high)
 
 
+def organs_context(kind, gap, rules=RULES):
+    """An abdominal CT read as an MRI: air (bin 0), fat (bin 15, the largest tissue) around organs (bin 25, dense:
+    10 noise widths above the fat) around bone (``gap`` bins above the organs), each a tissue of its own."""
+    n = 40
+    z, y, x = np.indices((n, n, n)) - (n - 1) / 2
+    r = np.sqrt(x**2 + y**2 + z**2)
+    bins = np.select([r < 4, r < 9, r < 17], [39, 25, 15], 0).astype(np.intp)
+    labels = np.select([np.arange(40) < 5, np.arange(40) < 20, np.arange(40) < 32], [0, 1, 2], 3)
+    voxels = np.bincount(labels[bins.ravel()], minlength=4)
+    class_bins = np.array([0.0, 15.0, 25.0, 25.0 + gap])
+    return LookContext.build(
+        classes=make_classes(voxels.tolist()), tissue_of_class=np.arange(4), class_values=class_bins,
+        class_bins=class_bins, labels=labels, noise_sd=1.0, preview=Preview(bins, (5.0, 5.0, 5.0), 40), kind=kind,
+        rules=rules,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "gap, offered", [(RULES.dense_separation - 0.01, False), (RULES.dense_separation + 0.01, True)]
+)
+def test_the_densest_parts_are_the_dense_rule_among_the_dense_classes(gap, offered):
+    """The organs are dense against the fat, the bone against the organs: the densest-parts look shows the bone
+    alone, at the ramp's top, where it lies the dense separation above the organs; closer, the dense classes are one
+    material, and the dense-parts look already shows them."""
+    context = organs_context("mr", gap)
+    assert context.roles == ["background", "bulk", "dense", "dense"]
+    assert context.densest.tolist() == [False, False, False, offered]
+    look = make_look("densest-parts", context)
+    assert (look is not None) is offered
+    if offered:
+        assert look.visible == [False, False, False, True]
+        assert look.opacities[3] >= RULES.opacity_high
+        assert "densest-parts" in [other.name for other in gallery(context)]
+
+
+def test_the_densest_parts_look_is_not_offered_on_ct_like_data():
+    # On CT the dense-parts look draws the denser material brighter, on the ramp by value.
+    context = organs_context("ct", 2 * RULES.dense_separation)
+    assert context.densest[3] and make_look("densest-parts", context) is None
+
+
 def light_of(context, opacities, visible):
     """``(n_classes,)`` light each class sends to the eye over the preview's six views."""
     bin_opacity = bin_opacity_of(np.where(visible, opacities, 0.0), context.labels, context.noise_sd)

@@ -14,6 +14,9 @@ name                what it shows                                            off
                     those the default hides on the ramp up to the rest:
                     a plume's fringe); on other data the dense parts
                     alone (a FLAIR's lesion)
+``densest-parts``   on data that are not CT-like, the densest of two dense     the dense classes hold a second
+                    materials alone (the bone inside the organs of an        material (:attr:`LookContext.densest`)
+                    abdominal CT whose fat makes it read as an MRI)
 ``outer-surface``   the tissue met first as a surface (the skin of a head,   always
                     a brain's cortex: MR-Default's look)
 ``see-through``     the dense parts look, with the bulk around them kept at   a class is ``dense`` and another
@@ -46,7 +49,16 @@ import numpy as np
 from .classes import PALETTE, IsovalueClass
 from .look import BACKGROUND_GREY, bin_opacity_of, default_look
 from .options import LOOK_NAMES
-from .roles import RULES, LookRules, class_roles, fog_width, in_real_tissue, noise_width, tissue_mean_bins
+from .roles import (
+    RULES,
+    LookRules,
+    class_roles,
+    dense_classes,
+    fog_width,
+    in_real_tissue,
+    noise_width,
+    tissue_mean_bins,
+)
 from .thumbnails import ray_visibility  # check_look's independent ray caster: an oracle, not the fast path
 from .visibility import Preview, surroundings_fill, visibility_histogram
 
@@ -133,6 +145,21 @@ class LookContext:
         if self.preview is None or voxels[rim].sum() < self.rules.real_share * max(voxels[objects].sum(), 1.0):
             return False
         return surroundings_fill(self.preview, rim[self.labels], objects[self.labels]) < self.rules.line_fill
+
+    @cached_property
+    def densest(self) -> np.ndarray:
+        """``(n_classes,)`` the dense classes of a second, denser material inside the dense parts: the dense rule
+        (:func:`.roles.dense_classes`) applied among the dense classes, its main material placed among them. On data
+        that are not CT-like the dense parts look shows the dense classes alone, one surface, and where they hold two
+        materials the outer one hides the other: an abdominal CT exported through a window reads as an MRI (its fat
+        is the largest tissue, the organs above it dense), and its dense parts are the organs around the bone."""
+        dense = self.of_role("dense")
+        width = noise_width(self.kind, self.noise_sd, self.voxel_noise_sd)
+        densest = np.zeros(len(self.classes), dtype=bool)
+        if dense.any():
+            ids = dense_classes(self.classes, self.tissue_of_class, self.class_bins, width, self.rules, among=dense)
+            densest[ids] = True
+        return densest
 
     @property
     def fog_sd(self) -> float:
@@ -344,6 +371,19 @@ def _dense_parts(context: LookContext) -> Made:
     if cleared is None:  # the dense classes are not in the preview
         return colors, list(opacities), list(np.asarray(visible) | dense)
     return (colors, *cleared)
+
+
+def _densest_parts(context: LookContext) -> Made:
+    """The densest of two dense materials alone (:attr:`LookContext.densest`), raised to the ramp's top as the dense
+    parts look shows the dense classes on data that are not CT-like; None on CT-like data, whose dense parts look
+    already draws the denser material brighter on the ramp by value, or where the dense classes are one material."""
+    if context.kind == "ct":
+        return None
+    densest = context.densest
+    if not densest.any() or np.array_equal(densest, context.of_role("dense")):
+        return None
+    colors, opacities, _ = _default(context, context.kind)
+    return colors, list(np.where(densest, np.maximum(opacities, context.rules.opacity_high), opacities)), list(densest)
 
 
 def _dense_ramp(context: LookContext, opacities: np.ndarray, visible: np.ndarray) -> np.ndarray:
@@ -564,6 +604,7 @@ def _monotone(context: LookContext, by_class: bool) -> Made:
 
 _MAKERS: dict[str, Callable[[LookContext], Made]] = {
     "dense-parts": _dense_parts,
+    "densest-parts": _densest_parts,
     "outer-surface": _outer_surface,
     "see-through": _see_through,
     "thin-structures": _thin_structures,
@@ -578,6 +619,13 @@ _DESCRIPTIONS: dict[str, Callable[[LookRules], tuple[str, str, dict, dict, bool]
         "the dense parts inside, what encloses them cleared",
         {"dense": (r.dense_share, 1.0)},
         {"dense": r.seen},
+        False,
+    ),
+    "densest-parts": lambda r: (
+        "Densest parts",
+        "the densest of two dense materials alone",
+        {"dense": (r.dense_share, 1.0)},
+        {},
         False,
     ),
     # Promises nothing a share can check: every class it shows is rim, bulk or dense, so such a share is always 1.

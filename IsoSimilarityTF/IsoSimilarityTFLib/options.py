@@ -25,7 +25,15 @@ KINDS = ("ct", "mr", "8bit")
 COLOR_SCHEMES = ("ramp", "distinct")
 GRADIENT_OPACITY = ("off", "auto")
 #: The looks of the gallery, in the order it offers them after the first click (see :mod:`.gallery`).
-LOOK_NAMES = ("dense-parts", "outer-surface", "see-through", "thin-structures", "all-tissues", "classes")
+LOOK_NAMES = (
+    "dense-parts",
+    "densest-parts",
+    "outer-surface",
+    "see-through",
+    "thin-structures",
+    "all-tissues",
+    "classes",
+)
 MAX_BINS = 4096
 
 

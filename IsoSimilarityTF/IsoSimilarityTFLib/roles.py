@@ -306,25 +306,31 @@ def dense_classes(
     class_bins: np.ndarray,
     noise_sd: float,
     rules: LookRules = RULES,
+    among: Optional[np.ndarray] = None,
 ) -> list[int]:
     """Ids of the classes of real tissues whose mean lies ``rules.dense_separation`` noise widths above the main
     material (:func:`main_material_bin`; the background left out) and above the background's, ascending: between
     the main material and a background above it lies their blend, not a denser material (a chest CT cropped to the
-    body: its soft tissue is the largest class, the background, and the lungs' edge against it lies between)."""
+    body: its soft tissue is the largest class, the background, and the lungs' edge against it lies between).
+
+    ``among``: ``(n_classes,)`` the classes the main material is placed in and the dense ones taken from (default:
+    every class but the background). Among the dense classes it finds a second, denser material inside them (the bone
+    inside the organs of a CT taken for an MRI, the fat its largest tissue: :attr:`.LookContext.densest`)."""
     voxels = np.array([c.voxels for c in classes], dtype=np.float64)
     foreground = np.array([not c.background for c in classes])
+    counted = foreground if among is None else np.asarray(among, dtype=bool) & foreground
     n_tissues = int(tissue_of_class.max()) + 1 if tissue_of_class.size else 0
-    tissue_voxels = np.bincount(tissue_of_class, weights=voxels * foreground, minlength=n_tissues)
-    tissue_bin = tissue_mean_bins(tissue_of_class, voxels, class_bins, n_tissues, counted=foreground)
+    tissue_voxels = np.bincount(tissue_of_class, weights=voxels * counted, minlength=n_tissues)
+    tissue_bin = tissue_mean_bins(tissue_of_class, voxels, class_bins, n_tissues, counted=counted)
     total = tissue_voxels.sum()
     if total <= 0:
         return []
     real = in_real_tissue(classes, tissue_of_class, rules)
-    main = main_material_bin(voxels * foreground, tissue_voxels, tissue_bin, class_bins)
+    main = main_material_bin(voxels * counted, tissue_voxels, tissue_bin, class_bins)
     above = class_bins >= main + rules.dense_separation * noise_sd
     if not foreground.all():
         above &= class_bins > class_bins[~foreground].max()
-    return [int(c) for c in np.flatnonzero(real & above & foreground)]
+    return [int(c) for c in np.flatnonzero(real & above & counted)]
 
 
 def main_material_bin(
