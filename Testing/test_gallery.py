@@ -473,20 +473,22 @@ def test_the_see_through_look_shows_every_dense_part_as_a_surface(opacity_high):
     assert look.opacities[2] == pytest.approx(opacity_high) and look.opacities[3] == pytest.approx(opacity_high)
 
 
-def organs_context(kind, gap, rules=RULES):
+def organs_context(kind, gap, core=None):
     """An abdominal CT read as an MRI: air (bin 0), fat (bin 15, the largest tissue) around organs (bin 25, dense:
-    10 noise widths above the fat) around bone (``gap`` bins above the organs), each a tissue of its own."""
+    10 noise widths above the fat) around bone (``gap`` bins above the organs), with a denser core (bin ``core``)
+    when given, each a tissue of its own."""
     n = 40
     z, y, x = np.indices((n, n, n)) - (n - 1) / 2
     r = np.sqrt(x**2 + y**2 + z**2)
-    bins = np.select([r < 4, r < 9, r < 17], [39, 25, 15], 0).astype(np.intp)
-    labels = np.select([np.arange(40) < 5, np.arange(40) < 20, np.arange(40) < 32], [0, 1, 2], 3)
-    voxels = np.bincount(labels[bins.ravel()], minlength=4)
-    class_bins = np.array([0.0, 15.0, 25.0, 25.0 + gap])
+    means = [0.0, 15.0, 25.0, 25.0 + gap] + ([] if core is None else [core])
+    bins = np.select([r < (4 if core else 0), r < 6, r < 10, r < 17], [n - 1, n - 2, 25, 15], 0).astype(np.intp)
+    labels = np.select([np.arange(n) < 5, np.arange(n) < 20, np.arange(n) < n - 2, np.arange(n) < n - 1], [0, 1, 2, 3],
+                       len(means) - 1)  # fmt: skip
+    voxels = np.bincount(labels[bins.ravel()], minlength=len(means))
+    class_bins = np.array(means)
     return LookContext.build(
-        classes=make_classes(voxels.tolist()), tissue_of_class=np.arange(4), class_values=class_bins,
-        class_bins=class_bins, labels=labels, noise_sd=1.0, preview=Preview(bins, (5.0, 5.0, 5.0), 40), kind=kind,
-        rules=rules,
+        classes=make_classes(voxels.tolist()), tissue_of_class=np.arange(len(means)), class_values=class_bins,
+        class_bins=class_bins, labels=labels, noise_sd=1.0, preview=Preview(bins, (5.0, 5.0, 5.0), n), kind=kind,
     )  # fmt: skip
 
 
@@ -506,6 +508,15 @@ def test_the_densest_parts_are_the_dense_rule_among_the_dense_classes(gap, offer
         assert look.visible == [False, False, False, True]
         assert look.opacities[3] >= RULES.opacity_high
         assert "densest-parts" in [other.name for other in gallery(context)]
+
+
+def test_every_densest_class_is_raised_to_the_ramps_top():
+    # Bone and its denser core: the outer surface leaves the bone below the core on the ramp.
+    context = organs_context("mr", 2 * RULES.dense_separation, core=38.0)
+    assert context.densest.tolist() == [False, False, False, True, True]
+    assert make_look("outer-surface", context).opacities[3] < 0.9 * RULES.opacity_high
+    look = make_look("densest-parts", context)
+    assert look.opacities[3:] == pytest.approx([RULES.opacity_high] * 2)
 
 
 def test_the_densest_parts_look_is_not_offered_on_ct_like_data():
