@@ -156,7 +156,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--look",
         choices=LOOK_NAMES,
         help="the look of the gallery that transfer_function.vp.json shows, if the data offer it (default: the first "
-        "click: dense-parts on CT-like data, else outer-surface)",
+        "click: thin-structures for thin structures alone, or lying along lines on data that are not CT-like; else "
+        "dense-parts on CT-like data; else outer-surface)",
     )
     output.add_argument(
         "--overwrite",
