@@ -519,6 +519,33 @@ def test_every_densest_class_is_raised_to_the_ramps_top():
     assert look.opacities[3:] == pytest.approx([RULES.opacity_high] * 2)
 
 
+def bright_organs_context(voxels, tissue_of_class, class_bins):
+    classes = make_classes(voxels)
+    class_bins = np.asarray(class_bins, dtype=float)
+    return LookContext.build(
+        classes=classes, tissue_of_class=np.asarray(tissue_of_class), class_values=class_bins, class_bins=class_bins,
+        labels=np.arange(len(voxels)), noise_sd=1.0, preview=None, kind="mr",
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("share, densest", [(0.0099, False), (0.0101, True)])
+def test_the_densest_material_holds_a_real_share_of_the_voxels(share, densest):
+    # Organs (bin 25, dense against the fat) below a tissue of a barely denser class (27) and a bright one (32)
+    # holding `share` of the 10_000 non-background voxels: a material from a real share on, else stray voxels.
+    top = int(round(share * 10_000))
+    context = bright_organs_context([50_000, 6000, 3000 - top, 1000, top], [0, 1, 2, 3, 3], [0, 15, 25, 27, 32])
+    assert context.roles == ["background", "bulk", "dense", "dense", "dense"]
+    assert context.densest.tolist() == [False, False, False, False, densest]
+
+
+@pytest.mark.parametrize("tissue_of_class, densest", [([0, 1, 2, 2], False), ([0, 1, 2, 3], True)])
+def test_the_densest_material_is_a_tissue_apart_from_the_dense_parts_main_class(tissue_of_class, densest):
+    # The brightest classes of the organs' own tissue are the top of its spread (a brain's brightest white matter
+    # drawn as speckle), not a denser material; a tissue of their own is.
+    context = bright_organs_context([50_000, 6000, 3000, 1000], tissue_of_class, [0, 15, 25, 32])
+    assert context.densest.tolist() == [False, False, False, densest]
+
+
 def test_the_densest_parts_look_is_not_offered_on_ct_like_data():
     # On CT the dense-parts look draws the denser material brighter, on the ramp by value.
     context = organs_context("ct", 2 * RULES.dense_separation)

@@ -149,7 +149,10 @@ class LookContext:
     @cached_property
     def densest(self) -> np.ndarray:
         """``(n_classes,)`` the dense classes of a second, denser material inside the dense parts: the dense rule
-        (:func:`.roles.dense_classes`) applied among the dense classes, its main material placed among them. On data
+        (:func:`.roles.dense_classes`) applied among the dense classes, its main material placed among them, where
+        they lie in tissues apart from the largest dense class's (the brightest classes of its own tissue are the top
+        of its spread: a brain's brightest white matter, drawn as speckle) and hold a real share of the voxels
+        (:attr:`.LookRules.real_share`, as a structure must). On data
         that are not CT-like the dense parts look shows the dense classes alone, one surface, and where they hold two
         materials the outer one hides the other: an abdominal CT exported through a window reads as an MRI (its fat
         is the largest tissue, the organs above it dense), and its dense parts are the organs around the bone."""
@@ -159,6 +162,12 @@ class LookContext:
         if dense.any():
             ids = dense_classes(self.classes, self.tissue_of_class, self.class_bins, width, self.rules, among=dense)
             densest[ids] = True
+        voxels = np.array([c.voxels for c in self.classes], dtype=np.float64)
+        if dense.any():
+            main = int(np.argmax(np.where(dense, voxels, -1.0)))
+            densest &= self.tissue_of_class != self.tissue_of_class[main]
+        if voxels[densest].sum() < self.rules.real_share * voxels[~self.of_role("background")].sum():
+            densest[:] = False  # stray voxels, not a material
         return densest
 
     @property
