@@ -15,8 +15,8 @@ name                what it shows                                            off
                     a plume's fringe); on other data the dense parts
                     alone (a FLAIR's lesion)
 ``densest-parts``   on data that are not CT-like, the densest of two dense     the dense classes hold a second
-                    materials alone (the bone inside the organs of an        material (:attr:`LookContext.densest`)
-                    abdominal CT whose fat makes it read as an MRI)
+                    materials alone (the bone inside the organs of an        material, a tissue of its own with a
+                    abdominal CT whose fat makes it read as an MRI)          real share (:attr:`LookContext.densest`)
 ``outer-surface``   the tissue met first as a surface (the skin of a head,   always
                     a brain's cortex: MR-Default's look)
 ``see-through``     the dense parts look, with the bulk around them kept at   a class is ``dense`` and another
@@ -152,20 +152,20 @@ class LookContext:
         (:func:`.roles.dense_classes`) applied among the dense classes, its main material placed among them, where
         they lie in tissues apart from the largest dense class's (the brightest classes of its own tissue are the top
         of its spread: a brain's brightest white matter, drawn as speckle) and hold a real share of the voxels
-        (:attr:`.LookRules.real_share`, as a structure must). On data
-        that are not CT-like the dense parts look shows the dense classes alone, one surface, and where they hold two
-        materials the outer one hides the other: an abdominal CT exported through a window reads as an MRI (its fat
-        is the largest tissue, the organs above it dense), and its dense parts are the organs around the bone."""
+        (:attr:`.LookRules.real_share`, as a structure must). On data that are not CT-like the dense parts look shows
+        the dense classes alone, one surface, and where they hold two materials the outer one hides the other: an
+        abdominal CT exported through a window reads as an MRI (its fat is the largest tissue, the organs above it
+        dense), and its dense parts are the organs around the bone."""
         dense = self.of_role("dense")
-        width = noise_width(self.kind, self.noise_sd, self.voxel_noise_sd)
         densest = np.zeros(len(self.classes), dtype=bool)
-        if dense.any():
-            ids = dense_classes(self.classes, self.tissue_of_class, self.class_bins, width, self.rules, among=dense)
-            densest[ids] = True
+        if not dense.any():
+            return densest
+        width = noise_width(self.kind, self.noise_sd, self.voxel_noise_sd)
+        ids = dense_classes(self.classes, self.tissue_of_class, self.class_bins, width, self.rules, among=dense)
+        densest[ids] = True
         voxels = np.array([c.voxels for c in self.classes], dtype=np.float64)
-        if dense.any():
-            main = int(np.argmax(np.where(dense, voxels, -1.0)))
-            densest &= self.tissue_of_class != self.tissue_of_class[main]
+        largest = int(np.argmax(np.where(dense, voxels, -1.0)))
+        densest &= self.tissue_of_class != self.tissue_of_class[largest]
         if voxels[densest].sum() < self.rules.real_share * voxels[~self.of_role("background")].sum():
             densest[:] = False  # stray voxels, not a material
         return densest
