@@ -630,13 +630,8 @@ _DESCRIPTIONS: dict[str, Callable[[LookRules], tuple[str, str, dict, dict, bool]
         {"dense": r.seen},
         False,
     ),
-    "densest-parts": lambda r: (
-        "Densest parts",
-        "the densest of two dense materials alone",
-        {"dense": (r.dense_share, 1.0)},
-        {},
-        False,
-    ),
+    # Promises nothing a share can check: it shows dense classes alone, so their share is always 1.
+    "densest-parts": lambda r: ("Densest parts", "the densest of two dense materials alone", {}, {}, False),
     # Promises nothing a share can check: every class it shows is rim, bulk or dense, so such a share is always 1.
     "outer-surface": lambda r: ("Outer surface", "the tissue met first, as a surface", {}, {}, False),
     "see-through": lambda r: (
