@@ -368,10 +368,7 @@ def _dense_parts(context: LookContext) -> Made:
     a veil of brain around it would only hide; the other classes keep their outer-surface opacities, hidden."""
     dense = context.of_role("dense")
     if context.kind != "ct":
-        if not dense.any():
-            return None
-        colors, opacities, _ = _default(context, context.kind)
-        return colors, list(np.where(dense, np.maximum(opacities, context.rules.opacity_high), opacities)), list(dense)
+        return _alone_at_the_top(context, dense) if dense.any() else None
     colors, opacities, visible = _default(context, "ct")
     if context.preview is None or not dense.any():
         return colors, opacities, visible
@@ -391,8 +388,14 @@ def _densest_parts(context: LookContext) -> Made:
     densest = context.densest
     if not densest.any() or np.array_equal(densest, context.of_role("dense")):
         return None
+    return _alone_at_the_top(context, densest)
+
+
+def _alone_at_the_top(context: LookContext, shown: np.ndarray) -> Made:
+    """The classes of ``shown`` (``(n_classes,)`` bool) alone, raised to the ramp's top; every other class keeps the
+    outer surface's opacity, hidden (what a user who shows it starts from)."""
     colors, opacities, _ = _default(context, context.kind)
-    return colors, list(np.where(densest, np.maximum(opacities, context.rules.opacity_high), opacities)), list(densest)
+    return colors, list(np.where(shown, np.maximum(opacities, context.rules.opacity_high), opacities)), list(shown)
 
 
 def _dense_ramp(context: LookContext, opacities: np.ndarray, visible: np.ndarray) -> np.ndarray:
