@@ -134,15 +134,18 @@ class LookContext:
         return int(self.tissue_of_class.max()) + 1 if self.tissue_of_class.size else 0
 
     @cached_property
+    def voxels(self) -> np.ndarray:
+        """``(n_classes,)`` voxels per class, as floats (the roles' and looks' shares are sums of them)."""
+        return np.array([c.voxels for c in self.classes], dtype=np.float64)
+
+    @cached_property
     def rim_in_the_open(self) -> bool:
         """Whether the rim holds structures of its own: a real share of the objects' voxels
         (:attr:`.LookRules.real_share` of those not background or fog) lying in the open, along lines
         (:attr:`.LookRules.line_fill`), not as the skin of a body (False without a preview: nothing measured). Measured
         once: the first click and the thin-structures look both ask."""
-        rim = self.of_role("rim")
-        voxels = np.array([c.voxels for c in self.classes], dtype=np.float64)
-        objects = ~self.of_role("background", "fog")
-        if self.preview is None or voxels[rim].sum() < self.rules.real_share * max(voxels[objects].sum(), 1.0):
+        rim, objects = self.of_role("rim"), ~self.of_role("background", "fog")
+        if self.preview is None or self.voxels[rim].sum() < self.rules.real_share * max(self.voxels[objects].sum(), 1):
             return False
         return surroundings_fill(self.preview, rim[self.labels], objects[self.labels]) < self.rules.line_fill
 
@@ -163,10 +166,9 @@ class LookContext:
         width = noise_width(self.kind, self.noise_sd, self.voxel_noise_sd)
         ids = dense_classes(self.classes, self.tissue_of_class, self.class_bins, width, self.rules, among=dense)
         densest[ids] = True
-        voxels = np.array([c.voxels for c in self.classes], dtype=np.float64)
-        largest = int(np.argmax(np.where(dense, voxels, -1.0)))
+        largest = int(np.argmax(np.where(dense, self.voxels, -1.0)))
         densest &= self.tissue_of_class != self.tissue_of_class[largest]
-        if voxels[densest].sum() < self.rules.real_share * voxels[~self.of_role("background")].sum():
+        if self.voxels[densest].sum() < self.rules.real_share * self.voxels[~self.of_role("background")].sum():
             densest[:] = False  # stray voxels, not a material
         return densest
 
@@ -246,7 +248,7 @@ def first_look_name(context: LookContext) -> str:
 def is_thin(context: LookContext) -> bool:
     """Whether the volume holds thin structures alone: :attr:`.LookRules.thin_rim_share` of the non-background,
     non-fog voxels are rim, and those voxels are at most :attr:`.LookRules.thin_foreground` of all."""
-    voxels = np.array([c.voxels for c in context.classes], dtype=np.float64)
+    voxels = context.voxels
     foreground = ~context.of_role("background", "fog")
     total = voxels.sum()
     objects = voxels[foreground].sum()
@@ -704,6 +706,5 @@ def _densest_real_tissue(context: LookContext) -> Optional[int]:
     real = np.unique(tissue_of_class[in_real_tissue(context.classes, tissue_of_class, context.rules)])
     if real.size == 0:
         return None
-    voxels = np.array([c.voxels for c in context.classes], dtype=np.float64)
-    means = tissue_mean_bins(context.tissue_of_class, voxels, context.class_bins, context.n_tissues)
+    means = tissue_mean_bins(context.tissue_of_class, context.voxels, context.class_bins, context.n_tissues)
     return int(real[int(np.argmax(means[real]))])
