@@ -418,38 +418,37 @@ def test_the_thumbnail_shows_the_look(phantom_design):
 # The oracle on both sides of each promise ----------------------------------------------------------------------------
 
 
-def shell_context(rules=RULES, kind="ct"):
-    """Air (bin 0), a soft shell (bins 10-19, bulk) around a dense core (bins 30-39)."""
+def balls_context(shells, edges, class_bins, kind, tissue_of_class=None, rules=RULES):
+    """A 40^3 preview (5-unit voxels) of concentric balls in air (bin 0): ``shells``, ``(radius, bin)`` from the
+    innermost. Bins below ``edges[0]`` are class 0, from ``edges[k - 1]`` on class ``k`` (no partial volume between
+    them); one tissue per class unless ``tissue_of_class`` says otherwise."""
     n = 40
     z, y, x = np.indices((n, n, n)) - (n - 1) / 2
     r = np.sqrt(x**2 + y**2 + z**2)
-    bins = np.select([r < 6, r < 17], [35, 15], 0).astype(np.intp)
-    labels = np.select([np.arange(40) < 5, np.arange(40) < 19], [0, 1], 2)  # no partial volume between them
-    voxels = np.bincount(labels[bins.ravel()], minlength=3)
-    classes = make_classes(voxels.tolist())
-    class_bins = np.array([0.0, 15.0, 35.0])
+    bins = np.select([r < radius for radius, _ in shells], [value for _, value in shells], 0).astype(np.intp)
+    labels = np.searchsorted(edges, np.arange(n), side="right")
+    class_bins = np.asarray(class_bins, dtype=float)
+    voxels = np.bincount(labels[bins.ravel()], minlength=class_bins.size)
+    tissue_of_class = np.arange(class_bins.size) if tissue_of_class is None else np.asarray(tissue_of_class)
     return LookContext.build(
-        classes=classes, tissue_of_class=np.arange(3), class_values=class_bins, class_bins=class_bins,
-        labels=labels, noise_sd=1.0, preview=Preview(bins, (5.0, 5.0, 5.0), 40), kind=kind, rules=rules,
+        classes=make_classes(voxels.tolist()), tissue_of_class=tissue_of_class, class_values=class_bins,
+        class_bins=class_bins, labels=labels, noise_sd=1.0, preview=Preview(bins, (5.0, 5.0, 5.0), n), kind=kind,
+        rules=rules,
     )  # fmt: skip
+
+
+def shell_context(rules=RULES, kind="ct"):
+    """Air (bin 0), a soft shell (bins 10-19, bulk) around a dense core (bins 30-39)."""
+    return balls_context([(6, 35), (17, 15)], [5, 19], [0.0, 15.0, 35.0], kind, rules=rules)
 
 
 def lesion_context(kind, rules=RULES, tissue_of_class=(0, 1, 2, 3)):
     """Air (bin 0), a brain (bin 15, bulk) around a bright lesion (bin 30) with a brighter centre (bin 37): both
     dense, three tissues on the ramp, so the lesion starts below its top (or, grouped with the brain by
     ``tissue_of_class``, drawn faint with it)."""
-    n = 40
-    z, y, x = np.indices((n, n, n)) - (n - 1) / 2
-    r = np.sqrt(x**2 + y**2 + z**2)
-    bins = np.select([r < 4, r < 6, r < 17], [37, 30, 15], 0).astype(np.intp)
-    labels = np.select([np.arange(40) < 5, np.arange(40) < 22, np.arange(40) < 34], [0, 1, 2], 3)
-    voxels = np.bincount(labels[bins.ravel()], minlength=4)
-    class_bins = np.array([0.0, 15.0, 30.0, 37.0])
-    return LookContext.build(
-        classes=make_classes(voxels.tolist()), tissue_of_class=np.array(tissue_of_class), class_values=class_bins,
-        class_bins=class_bins, labels=labels, noise_sd=1.0, preview=Preview(bins, (5.0, 5.0, 5.0), 40), kind=kind,
-        rules=rules,
-    )  # fmt: skip
+    return balls_context(
+        [(4, 37), (6, 30), (17, 15)], [5, 22, 34], [0.0, 15.0, 30.0, 37.0], kind, tissue_of_class, rules
+    )
 
 
 @pytest.mark.parametrize("opacity_high", [0.4, RULES.opacity_high])
@@ -477,19 +476,9 @@ def organs_context(kind, gap, core=None):
     """An abdominal CT read as an MRI: air (bin 0), fat (bin 15, the largest tissue) around organs (bin 25, dense:
     10 noise widths above the fat) around bone (``gap`` bins above the organs), with a denser core (bin ``core``)
     when given, each a tissue of its own."""
-    n = 40
-    z, y, x = np.indices((n, n, n)) - (n - 1) / 2
-    r = np.sqrt(x**2 + y**2 + z**2)
+    shells = [(4 if core else 0, 39), (6, 38), (10, 25), (17, 15)]
     means = [0.0, 15.0, 25.0, 25.0 + gap] + ([] if core is None else [core])
-    bins = np.select([r < (4 if core else 0), r < 6, r < 10, r < 17], [n - 1, n - 2, 25, 15], 0).astype(np.intp)
-    labels = np.select([np.arange(n) < 5, np.arange(n) < 20, np.arange(n) < n - 2, np.arange(n) < n - 1], [0, 1, 2, 3],
-                       len(means) - 1)  # fmt: skip
-    voxels = np.bincount(labels[bins.ravel()], minlength=len(means))
-    class_bins = np.array(means)
-    return LookContext.build(
-        classes=make_classes(voxels.tolist()), tissue_of_class=np.arange(len(means)), class_values=class_bins,
-        class_bins=class_bins, labels=labels, noise_sd=1.0, preview=Preview(bins, (5.0, 5.0, 5.0), n), kind=kind,
-    )  # fmt: skip
+    return balls_context(shells, [5, 20, 38] + ([] if core is None else [39]), means, kind)
 
 
 @pytest.mark.parametrize(
@@ -597,18 +586,14 @@ def fringe_context(rules=RULES):
     """A plume in empty space: a core (bin 37, a tissue of its own) inside fringe layers (bins 30 and 24, dense)
     that the intensity model grouped with the faint haze around them (bin 3, the tissue's largest class: fog), so the
     default look hides them with it."""
-    n = 40
-    z, y, x = np.indices((n, n, n)) - (n - 1) / 2
-    r = np.sqrt(x**2 + y**2 + z**2)
-    bins = np.select([r < 4, r < 5, r < 6, r < 17], [37, 30, 24, 3], 0).astype(np.intp)
-    labels = np.select([np.arange(40) < 2, np.arange(40) < 14, np.arange(40) < 27, np.arange(40) < 34], [0, 1, 2, 3], 4)
-    voxels = np.bincount(labels[bins.ravel()], minlength=5)
-    class_bins = np.array([0.0, 3.0, 24.0, 30.0, 37.0])
-    return LookContext.build(
-        classes=make_classes(voxels.tolist()), tissue_of_class=np.array([0, 1, 1, 1, 2]), class_values=class_bins,
-        class_bins=class_bins, labels=labels, noise_sd=1.0, preview=Preview(bins, (5.0, 5.0, 5.0), 40), kind="ct",
-        rules=rules,
-    )  # fmt: skip
+    return balls_context(
+        [(4, 37), (5, 30), (6, 24), (17, 3)],
+        [2, 14, 27, 34],
+        [0.0, 3.0, 24.0, 30.0, 37.0],
+        "ct",
+        [0, 1, 1, 1, 2],
+        rules,
+    )
 
 
 @pytest.mark.parametrize("opacity_low", [0.01, RULES.opacity_low])
