@@ -4,6 +4,8 @@ Every synthetic generator runs at a small size: deterministic, with the labels i
 real volumes of ../shared/data are only read when that folder is there.
 """
 
+from functools import cache
+
 import numpy as np
 import pytest
 from test_compare import _load
@@ -216,6 +218,7 @@ def test_the_look_panel_measures_shares_and_survives_a_failing_volume(capsys, mo
     assert any(row["first_click"] for row in case["looks"])
 
 
+@cache  # a panel volume's design takes seconds; the tests only read its measures
 def _measured(key):
     look_panel = _load("look_panel")
     volume = next(v for v in (*panel.REFERENCES, *panel.PANEL) if v.key == key)
