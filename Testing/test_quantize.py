@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from IsoSimilarityTFLib import quantize
+from IsoSimilarityTFLib.quantize import integers_per_bin
 
 
 def test_uint8_with_256_bins_is_the_identity():
@@ -39,6 +40,23 @@ def test_integer_lookup_path_equals_float_path(shape):
         np.testing.assert_array_equal(integer, floating)
         np.testing.assert_array_equal(quantize(values.astype(np.float32), n_bins).bins, integer)
         assert integer.dtype == (np.uint8 if n_bins <= 256 else np.uint16)
+
+
+@pytest.mark.parametrize(
+    "value_range, n_bins", [((0.0, 300.0), 256), ((0.0, 255.0), 256), ((-1024.0, 3071.0), 256), ((-3.5, 40.2), 7)]
+)
+def test_integers_per_bin_counts_the_integers_the_binning_puts_in_each_bin(value_range, n_bins):
+    low, high = value_range
+    integers = np.tile(np.arange(np.ceil(low), np.floor(high) + 1), (2, 2, 1))  # each integer 4 times
+    binned = quantize(integers, n_bins, value_range=value_range).bins.ravel()
+    np.testing.assert_array_equal(4 * integers_per_bin(value_range, n_bins), np.bincount(binned, minlength=n_bins))
+
+
+def test_integers_per_bin_tells_where_integers_fill_bins_unevenly():
+    assert sorted(set(integers_per_bin((0.0, 300.0), 256).tolist())) == [1, 2]  # 301 values: 45 bins hold two
+    assert set(integers_per_bin((0.0, 255.0), 256).tolist()) == {1}
+    assert integers_per_bin((0.25, 0.75), 256) is None  # no integer in the range
+    assert integers_per_bin((0.0, 2.0**40), 256) is None  # beyond the lookup span every bin holds billions
 
 
 def test_given_range_clamps_outside_values():

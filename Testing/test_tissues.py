@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from IsoSimilarityTFLib import TransferFunctionDesign, design_transfer_function
+from IsoSimilarityTFLib.quantize import _bin_index, integers_per_bin
 from IsoSimilarityTFLib.tissues import (
     _EM_ITERATIONS,
     _EM_TOLERANCE,
@@ -21,6 +22,7 @@ from IsoSimilarityTFLib.tissues import (
     fit_intensity_model,
     kmeans_1d,
     log_likelihood_bound,
+    tissue_hierarchy,
     value_step,
 )
 from isosimtf.phantom import head_phantom
@@ -73,6 +75,22 @@ def test_values_stored_in_coarse_steps_keep_their_tissues(sd_steps):
     np.testing.assert_allclose(lattice.means, 5 * unit.means, atol=0.05)
     assert lattice.sd == pytest.approx(5 * unit.sd, rel=0.02)
     assert lattice.sd >= 0.5 * 5
+
+
+def test_integers_filling_bins_unevenly_keep_their_tissues():
+    """Two overlapping tissues stored as the integers 0..300 (a uint16 MRI): 256 bins hold one or two of them, and
+    the histogram is that pattern times the tissues' density. Fitted per stored value, the model finds the tissues it
+    finds when every bin holds one value; fitted to the counts, it found 8, the storage's spikes."""
+    rng = np.random.default_rng(0)
+    values = np.concatenate([rng.normal(201, 4.93, 6547), rng.normal(209, 4.93, 34255)])  # in bins
+    one_per_bin = np.bincount(np.clip(np.round(values), 0, 255).astype(int), minlength=256).astype(float)
+    stored = np.clip(np.round(values * 300 / 255), 0, 300)
+    counts = np.bincount(_bin_index(stored, (0.0, 300.0), 256), minlength=256).astype(float)
+    every_bin = list(range(256))
+    reference = tissue_hierarchy(np.arange(256), one_per_bin, every_bin)
+    uneven = tissue_hierarchy(np.arange(256), counts, every_bin, values_per_bin=integers_per_bin((0.0, 300.0), 256))
+    assert reference.auto == uneven.auto == 2
+    assert uneven.noise_sd == pytest.approx(reference.noise_sd, rel=0.05)
 
 
 def test_partial_volume_ramp_is_not_a_tissue():

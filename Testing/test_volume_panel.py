@@ -248,6 +248,14 @@ def test_a_lossy_storage_gives_nearly_the_first_click_of_its_original(original, 
     assert abs(shares[0] - shares[1]) <= 0.15, shares
 
 
+def test_a_t1_head_stored_as_a_few_hundred_integers_is_still_an_mri():
+    # Stored as uint16 0..300, bins hold one or two of the values, and the intensity model fitted to the counts took
+    # the pattern for tissues: the head was taken for a CT, and its first click showed the scalp fat as bone.
+    cases = [_measured(key) for key in panel.VARIANT_GROUPS["T1 head storages"]]
+    assert [case["kind_detected"] for case in cases] == ["mr", "mr"]
+    assert len({_first_click(case)["look"] for case in cases}) == 1
+
+
 @pytest.mark.parametrize("key", ["micro-ct-8bit", "specimen-ct-8bit"])
 def test_a_micro_ct_exported_through_a_window_shows_no_air_in_any_look(key):
     # micro-ct-8bit: the air around the tube lies 3 noise widths below the ethanol (the background); in the 8-bit

@@ -166,6 +166,11 @@ def _downsampled(path: Path, factors: tuple[int, int, int]) -> tuple:
     return coarse, matrix, None, None, None
 
 
+def _colin27_coarse() -> tuple:
+    """Colin27's T1 (``ch2``, 1 mm, scalp included) averaged over 3 x 2 x 2 voxels: a coarse scan of a whole head."""
+    return _downsampled(TEMPLATES / "ch2.nii.gz", (3, 2, 2))
+
+
 def _nilearn_t1() -> Path | None:
     import importlib.util
 
@@ -270,6 +275,20 @@ def hu_windowed_8bit(load: Callable[[], tuple], window_hu: tuple[float, float]) 
         return stored, ijk_to_ras, labels, names, (per_hu, -low * per_hu)
 
     return exported
+
+
+def rescaled_uint16(load: Callable[[], tuple], top: int) -> Callable[[], tuple]:
+    """``load`` with its values mapped linearly onto the integers ``0..top`` as uint16: how an MRI is often stored (a
+    few hundred values; with ``top`` 300, more values than 256 bins, and fewer than two per bin, so bins hold one or
+    two). Labels and names unchanged; no HU map."""
+
+    def stored() -> tuple:
+        values, ijk_to_ras, labels, names, _storage = load()
+        values = np.asarray(values, dtype=np.float64)
+        low, high = float(values.min()), float(values.max())
+        return np.round((values - low) * (top / (high - low))).astype(np.uint16), ijk_to_ras, labels, names, None
+
+    return stored
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -1005,9 +1024,11 @@ PANEL: tuple[PanelVolume, ...] = (
                 "synthetic, exported to 8 bits from its lowest value to its 99.9th percentile"),
     PanelVolume("colin27-05mm", "Colin27 T1 at 0.5 mm (ch2better)", "MRI", _file_load(TEMPLATES / "ch2better.nii.gz"),
                 (), None, _file(TEMPLATES / "ch2better.nii.gz"), "Debian mricron-data"),
-    PanelVolume("colin27-coarse", "Colin27 T1 averaged to 2 x 2 x 3 mm", "MRI",
-                lambda: _downsampled(TEMPLATES / "ch2.nii.gz", (3, 2, 2)), (), None,
+    PanelVolume("colin27-coarse", "Colin27 T1 averaged to 2 x 2 x 3 mm", "MRI", _colin27_coarse, (), None,
                 _file(TEMPLATES / "ch2.nii.gz"), "Debian mricron-data, block means"),
+    PanelVolume("colin27-coarse-uint16", "Colin27 T1 averaged to 2 x 2 x 3 mm, uint16 0..300", "MRI",
+                rescaled_uint16(_colin27_coarse, 300), (), None, _file(TEMPLATES / "ch2.nii.gz"),
+                "Debian mricron-data, block means, stored as a few hundred integers"),
     PanelVolume("mni152", "MNI152 T1 (nilearn)", "MRI", lambda: (*_read(_nilearn_t1()), None, None, None), (), None,
                 lambda: _file(_nilearn_t1())(), "nilearn package data"),
     PanelVolume("inia19", "INIA19 macaque T1 brain", "MRI", _file_load(TEMPLATES / "inia19-t1-brain.nii.gz"),
@@ -1066,4 +1087,5 @@ VARIANT_GROUPS: dict[str, tuple[str, ...]] = {
     "micro-CT storages": ("micro-ct", "micro-ct-8bit"),
     "specimen storages": ("specimen-ct", "specimen-ct-8bit"),
     "abdomen CT storages": ("abdomen-ct", "abdomen-ct-8bit"),
+    "T1 head storages": ("colin27-coarse", "colin27-coarse-uint16"),
 }

@@ -19,7 +19,7 @@ from .gallery import GalleryLook, LookContext, check_look, first_look_name, gall
 from .look import bin_opacity_of, class_mean_values, detect_kind, gradient_ramp_top
 from .memory import check_memory
 from .options import DEFAULT_OPTIONS, KINDS, LOOK_NAMES, OPTIONS, check_options
-from .quantize import Quantization, bin_volume, bins_dtype, checked_n_bins, resolved_value_range
+from .quantize import Quantization, bin_volume, bins_dtype, checked_n_bins, integers_per_bin, resolved_value_range
 from .roles import is_constant_background
 from .similarity import isovalue_similarity
 from .source import VolumeSource
@@ -801,6 +801,8 @@ def design_transfer_function(
         timings[name] = time.perf_counter() - start
 
     source = _source(values, opts)
+    # An already quantized volume's bins say nothing of how its values were stored.
+    integer_storage = isinstance(source, VolumeSource) and np.issubdtype(source.dtype, np.integer)
     with stage("quantize", "quantizing"):
         bins, value_range, robust = _binned(
             source, opts, lambda fraction: report("quantize", fraction, "quantize: value range"), value_tap
@@ -863,6 +865,7 @@ def design_transfer_function(
             bin_voxels,
             [c.id for c in classes if c.id != background],
             similarity.matrix,
+            values_per_bin=integers_per_bin(value_range, n_bins) if integer_storage else None,
         )
         preview = Preview(tap.preview(), preview_spacing, n_bins)
         kind = _detect_kind(hierarchy, clusters.labels, bin_voxels, preview, opts["modality"])

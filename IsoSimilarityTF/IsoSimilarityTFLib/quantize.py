@@ -157,6 +157,20 @@ def resolved_value_range(value_range, data_range: tuple[float, float]) -> tuple[
     return low, high
 
 
+def integers_per_bin(value_range: tuple[float, float], n_bins: int) -> Optional[np.ndarray]:
+    """How many integers each bin holds, ``(n_bins,)`` int64, binned as :func:`bin_volume` bins them (the last bin
+    holding its upper edge): the values an integer storage can put in each bin. They differ from bin to bin where the
+    integers do not divide evenly into the bins (301 values over 256 bins: 1 or 2 each; a uint16 MRI of values
+    0..300), and a histogram of such data is that pattern times the tissues' density. None beyond the span
+    :func:`bin_volume` bins through a lookup table, where every bin holds thousands and they differ by one."""
+    low, high = value_range
+    first, last = int(np.ceil(low)), int(np.floor(high))
+    if last < first or last - first >= _MAX_LOOKUP_SPAN:
+        return None
+    integers = np.arange(first, last + 1, dtype=np.float64)
+    return np.bincount(_bin_index(integers, value_range, n_bins), minlength=n_bins)
+
+
 def _bin_index(values: np.ndarray, value_range: tuple[float, float], n_bins: int) -> np.ndarray:
     return _bins_in_place(np.array(values, dtype=np.float64), value_range, n_bins).astype(np.int64)
 

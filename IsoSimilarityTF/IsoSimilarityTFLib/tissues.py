@@ -410,6 +410,7 @@ def tissue_hierarchy(
     order: list[int],
     similarity: Optional[np.ndarray] = None,
     model: Optional[IntensityModel] = None,
+    values_per_bin: Optional[np.ndarray] = None,
 ) -> TissueHierarchy:
     """Rank the cuts between neighbouring classes so that ``n`` tissues are the ``n - 1`` first cuts.
 
@@ -420,6 +421,12 @@ def tissue_hierarchy(
         similarity: ``(n_bins, n_bins)`` isovalue similarity; orders the cuts inside a tissue (without it, Ward's
             criterion does).
         model: the intensity model (default: :func:`choose_intensity_model` on the classes' bins).
+        values_per_bin: ``(n_bins,)`` how many values the storage can put in each bin
+            (:func:`.quantize.integers_per_bin`), or None where every bin can hold as many. The default model is
+            fitted to the voxels per stored value: an integer storage that puts one value in some bins and two in
+            others (301 values over 256 bins) makes every sixth bin of the histogram twice as full, a pattern of
+            the storage that the model would otherwise fit as tissues (a T1 head stored as uint16 0..300 was taken
+            for a CT: its scalp fat became bone).
     """
     labels = np.asarray(labels)
     counts = np.asarray(counts, dtype=np.float64)
@@ -428,7 +435,7 @@ def tissue_hierarchy(
         return TissueHierarchy(order=tuple(order), boundaries=(), auto=n)
     in_order = np.isin(labels, order)
     if model is None:
-        model = choose_intensity_model(np.where(in_order, counts, 0.0))
+        model = choose_intensity_model(np.where(in_order, _per_stored_value(counts, values_per_bin), 0.0))
     x = np.arange(labels.size, dtype=np.float64)
     posterior = model.tissue_posterior(x) * counts[:, None]
     position = np.full(int(labels.max()) + 1, -1)
@@ -443,6 +450,16 @@ def tissue_hierarchy(
     return TissueHierarchy(
         order=tuple(int(c) for c in order), boundaries=tuple(merged_at[::-1]), auto=auto, noise_sd=float(model.sd)
     )
+
+
+def _per_stored_value(counts: np.ndarray, values_per_bin: Optional[np.ndarray]) -> np.ndarray:
+    """Voxels per bin divided by the values each bin can hold, scaled back to the same total (bins that can hold
+    none hold no voxels)."""
+    if values_per_bin is None:
+        return counts
+    per = np.asarray(values_per_bin, dtype=np.float64)
+    density = np.divide(counts, per, out=np.zeros_like(counts), where=per > 0)
+    return density * (counts.sum() / density.sum()) if density.sum() > 0 else counts
 
 
 def _agglomerate(
