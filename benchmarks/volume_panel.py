@@ -995,6 +995,7 @@ def real_load(
 
 
 _CTA_CHEST = next(v for v in REAL_VOLUMES if v.key == "cta-chest")
+_STROKE_T1 = next(v for v in REAL_VOLUMES if v.key == "mr-brain-stroke-t1")
 
 PANEL: tuple[PanelVolume, ...] = (
     *(
@@ -1063,6 +1064,9 @@ PANEL: tuple[PanelVolume, ...] = (
                 _file(_CTA_CHEST.path),
                 f"../shared/data/cta-chest.nii.gz, re-stored as a stented aorta's CTA was: {_CTA_CHEST.source}",
                 _CTA_CHEST.kept),
+    PanelVolume("mr-brain-stroke-t1-uint16", "Brain T1 MRI after a stroke, uint16 0..300 (real, re-stored)", "MRI",
+                rescaled_uint16(real_load(_STROKE_T1), 300), _STROKE_T1.shown_for, _STROKE_T1.fog,
+                _file(_STROKE_T1.path), f"../shared/data/mr-brain-stroke-t1.nii.gz, re-stored: {_STROKE_T1.source}"),
 )  # fmt: skip
 
 #: The HU originals of the re-stored volumes: compare.py has them as ``phantom`` and ``head-ct``; look_panel.py
@@ -1088,4 +1092,5 @@ VARIANT_GROUPS: dict[str, tuple[str, ...]] = {
     "specimen storages": ("specimen-ct", "specimen-ct-8bit"),
     "abdomen CT storages": ("abdomen-ct", "abdomen-ct-8bit"),
     "T1 head storages": ("colin27-coarse", "colin27-coarse-uint16"),
+    "stroke T1 storages": ("mr-brain-stroke-t1", "mr-brain-stroke-t1-uint16"),
 }
