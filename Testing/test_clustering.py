@@ -95,6 +95,25 @@ def test_identical_isovalues_are_never_split():
     assert len(set(result.labels[1:31])) == 1 and result.n_classes == 3
 
 
+def test_distinct_isovalues_are_clustered_once_each():
+    # The empty bins between a coarse storage's values repeat an isovalue's row: with distinct=True AP runs on one
+    # copy of each row, which is AP on the matrix of the distinct rows, its labels copied to the repeats.
+    rng = np.random.default_rng(3)
+    x = np.sort(rng.uniform(0, 6, 9))
+    distinct = np.exp(-np.abs(x[:, None] - x[None, :]))
+    copies = np.array([1, 12, 1, 9, 1, 1, 15, 1, 1])
+    of = np.repeat(np.arange(9), copies)  # isovalue -> distinct row
+    repeated = distinct[np.ix_(of, of)]
+    reference = cluster_isovalues(distinct)
+    result = cluster_isovalues(repeated, distinct=True)
+    assert result.converged and result.n_classes == reference.n_classes
+    np.testing.assert_array_equal(result.labels, reference.labels[of])
+    firsts = np.concatenate([[0], np.cumsum(copies)[:-1]])  # each exemplar at the lowest isovalue of its row
+    np.testing.assert_array_equal(result.exemplars, firsts[reference.exemplars])
+    # Without it, the copies are points of their own: another grouping (the preference's median is theirs).
+    assert not np.array_equal(cluster_isovalues(repeated).labels, result.labels)
+
+
 def test_everything_empty_or_one_isovalue():
     with pytest.raises(ClusteringError, match="nothing to cluster"):
         cluster_isovalues(np.zeros((5, 5)))

@@ -219,6 +219,23 @@ def test_unconverged_rules():
     assert raised.clustering["max_iter"] > 200 and raised.clustering["convergence_iter"] > 15
 
 
+def test_a_few_values_over_many_bins_are_clustered_on_the_distinct_isovalues():
+    # The head phantom clipped at 0 HU in 62.5-HU steps, then exported to 8 bits through an auto-contrast window: 5
+    # values 64 bins apart. The bins between them repeat an isovalue up to 63 times, and AP on every isovalue did not
+    # converge at any damping (the design raised); on the distinct ones it does, and the tissues get classes.
+    steps = np.round(np.clip(head_phantom(48, seed=0).values, 0, None) / 62.5)
+    low, high = np.percentile(steps, [0.5, 99.5])
+    stored = np.round(np.clip((steps - low) / (high - low), 0, 1) * 255).astype(np.uint8)
+    assert np.unique(stored).size == 5
+    design = design_transfer_function(stored)
+    assert design.clustering["converged"] and design.clustering["distinct"]
+    assert len(design.classes) >= 3 and any(design.is_shown(c.id) for c in design.classes)
+    with pytest.raises(ClusteringError, match="then on the distinct ones"):
+        design_transfer_function(stored, max_iter=2, convergence_iter=2)
+    # Where AP on every isovalue converges, that is the design (the thesis'): the distinct ones are a fallback.
+    assert design_transfer_function(head_phantom(48, seed=0).values).clustering["distinct"] is False
+
+
 def test_bad_options():
     values = np.arange(27).reshape(3, 3, 3)
     with pytest.raises(TypeError, match="unknown option"):

@@ -236,6 +236,7 @@ def _first_click(case):
     [
         ("phantom-hu", "phantom-clipped"),
         ("head-ct-hu", "head-ct-clipped"),
+        ("head-ct-clipped", "head-ct-clipped-8bit"),  # 1 class, nothing shown, before the distinct isovalues
         ("micro-ct", "micro-ct-8bit"),
         ("specimen-ct", "specimen-ct-8bit"),
     ],

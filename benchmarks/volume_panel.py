@@ -1003,6 +1003,9 @@ PANEL: tuple[PanelVolume, ...] = (
                     _file(HEAD_CT), "Debian invesalius-examples (Cranium.inv3), re-stored")
         for s in ("uint16", "8bit", "float", "clipped")  # in HU it is compare.py's head-ct
     ),
+    PanelVolume("head-ct-clipped-8bit", "Head CT, clipped, then an 8-bit auto-contrast export", "CT",
+                windowed_8bit(ct_storage("clipped"), 99.5, 0.5), ("dense",), None, _file(HEAD_CT),
+                "Debian invesalius-examples (Cranium.inv3), clipped at 0 HU in 62.5-HU steps, then windowed"),
     *(
         PanelVolume(f"phantom-{s}", f"Phantom 128^3, {s}", "CT", _phantom_storage(s), ("skull",),
                     "air", _always, "isosimtf phantom, seed 0, re-stored")
@@ -1083,7 +1086,7 @@ REFERENCES: tuple[PanelVolume, ...] = (
 #: group of its own with its HU original.
 VARIANT_GROUPS: dict[str, tuple[str, ...]] = {
     "head CT storages": tuple(f"head-ct-{s}" for s in ("hu", "uint16", "8bit", "float")),
-    "head CT clipped at 0 HU": ("head-ct-hu", "head-ct-clipped"),
+    "head CT clipped at 0 HU": ("head-ct-hu", "head-ct-clipped", "head-ct-clipped-8bit"),
     "phantom storages": tuple(f"phantom-{s}" for s in ("hu", "uint16", "8bit", "float")),
     "phantom clipped at 0 HU": ("phantom-hu", "phantom-clipped"),
     "chest CTA clipped at 0 HU": ("cta-chest", "cta-chest-clipped"),

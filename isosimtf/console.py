@@ -124,7 +124,8 @@ def summary_text(result: "RunResult") -> str:
     lines.append(
         f"classes: {clustering.get('n_classes', len(design.classes))} ({shown} shown); affinity propagation: "
         f"{clustering.get('n_iter')} iterations, {'converged' if clustering.get('converged') else 'NOT converged'}, "
-        f"damping {clustering.get('damping', design.options.get('damping'))}, "
+        f"damping {clustering.get('damping', design.options.get('damping'))}"
+        f"{' on the distinct isovalues' if clustering.get('distinct') else ''}, "
         f"preference {clustering.get('preference', 0.0):.4g} ({design.options.get('preference')})"
     )
     times = ", ".join(f"{stage} {seconds:.2f}" for stage, seconds in result.timings_s.items() if stage != "total")

@@ -150,6 +150,7 @@ def cluster_isovalues(
     convergence_iter: int = 15,
     empty_isovalues: Optional[Sequence[int]] = None,
     on_iteration: Optional[IterationCallback] = None,
+    distinct: bool = False,
 ) -> ClusteringResult:
     """Cluster isovalues by affinity propagation on ``similarity - 1`` (the negated distance).
 
@@ -164,6 +165,11 @@ def cluster_isovalues(
             isovalue. Default: those whose row of ``similarity`` is all zero.
         on_iteration: called as ``on_iteration(iteration, max_iter)`` after each AP iteration; raising from it stops
             the clustering.
+        distinct: run AP on the distinct isovalues only: isovalues with identical rows (the empty bins between the
+            values of a volume stored in a few coarse steps cross the same cells at every level) are one point, and
+            each takes its point's class. Many copies of a point make AP's messages oscillate between equal
+            exemplars, or collapse on one; without copies the preference's median is not theirs either. False: every
+            isovalue is a point (the thesis), and classes that share identical rows are merged after AP.
 
     Returns:
         The classes; deterministic for the same input. ``converged`` is reported, not enforced.
@@ -189,8 +195,15 @@ def cluster_isovalues(
     if members.size == 0:
         raise ClusteringError("no isovalue crosses any cell: there is nothing to cluster")
 
-    affinity = similarity[np.ix_(members, members)] - 1.0
-    if members.size == 1:
+    if distinct:
+        # One point per set of identical rows, each at its lowest isovalue; the labels are copied back below.
+        _, first, point_of = np.unique(similarity[members], axis=0, return_index=True, return_inverse=True)
+        points = np.sort(first)
+        point_of = np.searchsorted(points, first[point_of.reshape(-1)])
+    else:
+        points = point_of = np.arange(members.size)
+    affinity = similarity[np.ix_(members[points], members[points])] - 1.0
+    if points.size == 1:
         member_labels, exemplars, n_iter, converged = np.zeros(1, dtype=np.intp), np.zeros(1, dtype=np.intp), 0, True
         pref = 0.0
     else:
@@ -210,8 +223,9 @@ def cluster_isovalues(
                 "raise max_iter or damping (e.g. max_iter=1000, damping=0.9)"
             )
     member_labels, exemplars = _merge_duplicates(affinity, np.asarray(member_labels), exemplars)
+    member_labels = member_labels[point_of]
     # Class ids in order of exemplar isovalue, so class 0 is the lowest intensity group.
-    exemplar_bins = members[exemplars]
+    exemplar_bins = members[points[exemplars]]
     order = np.argsort(exemplar_bins, kind="stable")
     rank_of = np.empty_like(order)
     rank_of[order] = np.arange(order.size)

@@ -13,7 +13,7 @@ from typing import Callable, Optional, Union
 import numpy as np
 
 from .classes import IsovalueClass, _flag, _unit_number, build_classes, planes_read, runs, voxel_noise_sd
-from .clustering import FALLBACK_DAMPINGS, cluster_isovalues, unconverged_advice
+from .clustering import FALLBACK_DAMPINGS, ClusteringResult, cluster_isovalues, unconverged_advice
 from .errors import ClusteringError
 from .gallery import GalleryLook, LookContext, check_look, first_look_name, gallery, make_look
 from .look import bin_opacity_of, class_mean_values, detect_kind, gradient_ramp_top
@@ -21,7 +21,7 @@ from .memory import check_memory
 from .options import DEFAULT_OPTIONS, KINDS, LOOK_NAMES, OPTIONS, check_options
 from .quantize import Quantization, bin_volume, bins_dtype, checked_n_bins, integers_per_bin, resolved_value_range
 from .roles import is_constant_background
-from .similarity import isovalue_similarity
+from .similarity import IsovalueSimilarity, isovalue_similarity
 from .source import VolumeSource
 from .survey import checked_data_range, survey_volume
 from .taps import SlabTap
@@ -114,7 +114,8 @@ class TransferFunctionDesign:
         labels: ``(n_bins,)`` class id per bin.
         classes: the classes, in id order (id 0 = lowest exemplar intensity).
         options: the options the design was made with.
-        clustering: ``n_iter``, ``converged``, ``n_classes`` and ``preference`` of affinity propagation.
+        clustering: ``n_iter``, ``converged``, ``n_classes`` and ``preference`` of affinity propagation, and the run
+            kept: its ``damping``, iteration limits and whether it was on the distinct isovalues (``distinct``).
         bin_voxels: ``(n_bins,)`` voxels per bin (the volume's histogram).
         hierarchy: every grouping of the non-background classes into tissues (see :mod:`.tissues`).
         kind: ``"ct"``, ``"mr"`` or ``"8bit"`` (see :func:`.look.detect_kind`); chooses the colours.
@@ -708,6 +709,60 @@ def _clustering_progress(report: Callable[[str, float, str], None], n_bins: int,
     return on_iteration
 
 
+def _clustered(
+    similarity: IsovalueSimilarity, opts: dict, report: Callable[[str, float, str], None]
+) -> tuple[ClusteringResult, dict]:
+    """Affinity propagation with the options' damping, then, under ``unconverged="raise-damping"``, the fallback
+    dampings (iteration limits scaled by the slower message updates), and then the same on the distinct isovalues
+    (:func:`.clustering.cluster_isovalues`' ``distinct``): a volume stored in a few coarse steps has runs of
+    identical isovalues, on which AP oscillates, or converges on a single class, which shows nothing. The first run
+    that converges on more than one class is kept, else the first that converged; with what was used
+    (``damping``, ``max_iter``, ``convergence_iter``, ``distinct``).
+
+    Raises:
+        ClusteringError: no run converged and ``opts["unconverged"]`` is not ``"keep"``.
+    """
+    n_bins = opts["n_bins"]
+    dampings = [opts["damping"]]
+    if opts["unconverged"] == "raise-damping":
+        dampings += [d for d in FALLBACK_DAMPINGS if d > opts["damping"]]
+    ladder = [(d, False) for d in dampings]
+    if opts["unconverged"] == "raise-damping":
+        ladder += [(d, True) for d in dampings]
+    single = None  # the first run that converged on a single class
+    for damping, distinct in ladder:
+        slowdown = (1.0 - opts["damping"]) / (1.0 - damping)
+        run = {
+            "damping": damping,
+            "max_iter": int(round(opts["max_iter"] * slowdown)),
+            "convergence_iter": int(round(opts["convergence_iter"] * slowdown)),
+            "distinct": distinct,
+        }
+        clusters = cluster_isovalues(
+            similarity.matrix,
+            preference=opts["preference"],
+            damping=damping,
+            max_iter=run["max_iter"],
+            convergence_iter=run["convergence_iter"],
+            empty_isovalues=similarity.empty_isovalues,
+            on_iteration=_clustering_progress(report, n_bins, damping),
+            distinct=distinct,
+        )
+        if clusters.converged and clusters.n_classes > 1:
+            return clusters, run
+        if clusters.converged and single is None:
+            single = clusters, run
+    if single is not None:
+        return single
+    if opts["unconverged"] != "keep":
+        where = " on every isovalue, then on the distinct ones" if len(ladder) > len(dampings) else ""
+        raise ClusteringError(
+            f"affinity propagation did not converge in {opts['max_iter']} iterations with damping "
+            f"{', '.join(f'{d:g}' for d in dampings)}{where}; {unconverged_advice(opts['max_iter'], dampings)}"
+        )
+    return clusters, run
+
+
 def _source(values, opts: dict) -> Union[VolumeSource, Quantization]:
     """The volume as a source (an already quantized volume as it is), once the memory the design needs is checked;
     sets ``opts``' ``n_bins`` (and ``value_range`` of a quantized volume)."""
@@ -770,7 +825,8 @@ def design_transfer_function(
             (see :data:`.options.OPTIONS`). ``unconverged`` says what happens when affinity propagation does not
             converge:
             ``"raise-damping"`` retries with damping 0.7 then 0.9 and iteration limits scaled by the slower message
-            updates (what was used is reported in ``clustering``), ``"error"`` raises,
+            updates, then the same on the distinct isovalues (see :func:`_clustered`; what was used is reported in
+            ``clustering``), ``"error"`` raises,
             ``"keep"`` keeps the last iteration's grouping (reported as not converged).
             ``tissues``: ``"auto"`` (the count the intensity model chooses, see :mod:`.tissues`), ``"all"`` (one
             tissue per class: the thesis' classes) or a number of non-background tissues; :meth:`regroup` changes
@@ -825,30 +881,7 @@ def design_transfer_function(
         )
 
     with stage("clustering", "affinity propagation"):
-        dampings = [opts["damping"]]
-        if opts["unconverged"] == "raise-damping":
-            dampings += [d for d in FALLBACK_DAMPINGS if d > opts["damping"]]
-        for damping in dampings:
-            slowdown = (1.0 - opts["damping"]) / (1.0 - damping)
-            iterations = {
-                "max_iter": int(round(opts["max_iter"] * slowdown)),
-                "convergence_iter": int(round(opts["convergence_iter"] * slowdown)),
-            }
-            clusters = cluster_isovalues(
-                similarity.matrix,
-                preference=opts["preference"],
-                damping=damping,
-                empty_isovalues=similarity.empty_isovalues,
-                on_iteration=_clustering_progress(report, n_bins, damping),
-                **iterations,
-            )
-            if clusters.converged:
-                break
-        if not clusters.converged and opts["unconverged"] != "keep":
-            raise ClusteringError(
-                f"affinity propagation did not converge in {opts['max_iter']} iterations with damping "
-                f"{', '.join(f'{d:g}' for d in dampings)}; {unconverged_advice(opts['max_iter'], dampings)}"
-            )
+        clusters, run = _clustered(similarity, opts, report)
 
     with stage("classes", "ranking classes"):
         bin_voxels = tap.voxel_counts
@@ -881,8 +914,7 @@ def design_transfer_function(
                 "converged": clusters.converged,
                 "n_classes": clusters.n_classes,
                 "preference": clusters.preference,
-                "damping": damping,
-                **iterations,
+                **run,
                 "empty_isovalues": [int(b) for b in similarity.empty_isovalues],
             },
             bin_voxels=bin_voxels,
