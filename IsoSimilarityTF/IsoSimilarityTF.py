@@ -917,6 +917,8 @@ class IsoSimilarityTFLogic(ScriptedLoadableModuleLogic, DesignSession):
             convergence = _("converged in {n} iterations").format(n=clustering.get("n_iter", "?"))
         else:
             convergence = _("did not converge ({n} iterations)").format(n=clustering.get("n_iter", "?"))
+        if clustering.get("distinct"):  # the retry on the distinct isovalues (a volume of few values) was kept
+            convergence = _("{convergence} on the distinct isovalues").format(convergence=convergence)
         return _(
             "{count} classes ({shown} shown) in {tissues} tissues; affinity propagation {convergence}, "
             "damping {damping}."

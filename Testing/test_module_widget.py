@@ -509,6 +509,15 @@ def test_the_panel_words_for_none_and_a_number(module):
     assert design_options(_defaults(module, tissues=9))["tissues"] == 9
 
 
+def test_the_summary_says_when_affinity_propagation_ran_on_the_distinct_isovalues(module):
+    design = hand_made_design()
+    summary = module.IsoSimilarityTFLogic.summaryText
+    design.clustering.update(converged=True, n_iter=61, damping=0.5, distinct=False)
+    assert "converged in 61 iterations, damping 0.5." in summary(design)
+    design.clustering["distinct"] = True
+    assert "converged in 61 iterations on the distinct isovalues, damping 0.5." in summary(design)
+
+
 @pytest.mark.parametrize(("parameter", "value"), [("bins", 1), ("damping", 1.5), ("crossing", "both"), ("tissues", -1)])
 def test_a_bad_parameter_is_refused_before_anything_runs(module, parameter, value):
     from IsoSimilarityTFLib import OptionError
