@@ -723,12 +723,9 @@ def _clustered(
         ClusteringError: no run converged and ``opts["unconverged"]`` is not ``"keep"``.
     """
     n_bins = opts["n_bins"]
-    dampings = [opts["damping"]]
-    if opts["unconverged"] == "raise-damping":
-        dampings += [d for d in FALLBACK_DAMPINGS if d > opts["damping"]]
-    ladder = [(d, False) for d in dampings]
-    if opts["unconverged"] == "raise-damping":
-        ladder += [(d, True) for d in dampings]
+    retry = opts["unconverged"] == "raise-damping"
+    dampings = [opts["damping"], *(d for d in FALLBACK_DAMPINGS if retry and d > opts["damping"])]
+    ladder = [(d, distinct) for distinct in ((False, True) if retry else (False,)) for d in dampings]
     single = None  # the first run that converged on a single class
     for damping, distinct in ladder:
         slowdown = (1.0 - opts["damping"]) / (1.0 - damping)
@@ -755,7 +752,7 @@ def _clustered(
     if single is not None:
         return single
     if opts["unconverged"] != "keep":
-        where = " on every isovalue, then on the distinct ones" if len(ladder) > len(dampings) else ""
+        where = " on every isovalue, then on the distinct ones" if retry else ""
         raise ClusteringError(
             f"affinity propagation did not converge in {opts['max_iter']} iterations with damping "
             f"{', '.join(f'{d:g}' for d in dampings)}{where}; {unconverged_advice(opts['max_iter'], dampings)}"
