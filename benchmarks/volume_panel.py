@@ -6,8 +6,10 @@ density instead ("dense" = at least 300 HU, the bone and contrast that CT preset
 
 - **Storage variants** of the head CT and of the phantom: Hounsfield units (int16), HU + 1024 as uint16 (raw DICOM
   pixel data, micro-CT), an 8-bit export (the range mapped linearly to 0..255), a float32 copy, HU clipped at 0 in
-  62.5-HU steps (:func:`hu_clipped_quantized`, as a stented aorta's CTA came). The same data: a look that depends on
-  storage shows in these rows (:data:`VARIANT_GROUPS`; the HU originals are :data:`REFERENCES`).
+  62.5-HU steps (:func:`hu_clipped_quantized`, as a stented aorta's CTA came), and the head CT's clipped storage
+  exported again to 8 bits through an auto-contrast window (a few dozen values over many bins); two MRIs (Colin27
+  coarse, the shared stroke T1) stored as the integers 0..300 (:func:`rescaled_uint16`). The same data: a look that
+  depends on storage shows in these rows (:data:`VARIANT_GROUPS`; the HU originals are :data:`REFERENCES`).
 - **Resolution variants**: the phantom at 64^3 (3.75 mm), Colin27 at 0.5 mm (``ch2better``) and averaged down to
   2 x 2 x 3 mm (a coarse clinical T1); **voxel-size variants**: the phantom's own voxels with the spacing scaled by
   0.05 and by 3 (a look must not change with the voxel size alone).
