@@ -54,6 +54,19 @@ def test_a_low_class_is_fog_only_when_its_tissue_lies_at_the_background_too(gap,
     assert class_roles(classes, np.array([0, 1, 1]), np.array([0.0, 2.0, gap]), 1.0)[1] == role
 
 
+@pytest.mark.parametrize("share, role", [(RULES.located_share - 0.01, "bulk"), (RULES.located_share + 0.01, "fog")])
+def test_a_low_class_is_fog_where_most_of_its_tissues_voxels_lie_at_the_background(share, role):
+    # A skull-stripped brain in a storage where the cortex's edge (bin 10, apart from the background) is its
+    # tissue's largest class by a few voxels: the CSF's two classes (bins 1 and 2, not touching the background) hold
+    # `share` of the tissue's voxels, each fewer than the edge.
+    csf = 10_000
+    edge = round(2 * csf * (1 - share) / share)
+    assert edge > csf
+    classes = make_classes([500_000, csf, csf, edge], contact=[1.0, 0.1, 0.1, 0.0])
+    roles = class_roles(classes, np.array([0, 1, 1, 1]), np.array([0.0, 1.0, 2.0, 10.0]), 1.0)
+    assert roles == ["background", role, role, "bulk"]
+
+
 def air_around_a_tube(below=0):
     """Roles of: ethanol, the background (bin 40); the air's noise tissue below it (its largest class 3 noise widths
     down, its tail 6); the specimen above (bin 100); and ``below`` voxels of a tissue of their own far below (bin 0)."""

@@ -239,9 +239,11 @@ def _first_click(case):
         ("head-ct-clipped", "head-ct-clipped-8bit"),  # 1 class, nothing shown, before the distinct isovalues
         ("micro-ct", "micro-ct-8bit"),
         ("specimen-ct", "specimen-ct-8bit"),
+        # 0.27 apart when the CSF's tissue was placed by its largest class alone (a toss-up among three)
+        ("mr-brain-stroke-t1", "mr-brain-stroke-t1-uint16"),
     ],
 )
-def test_a_lossy_storage_gives_nearly_the_first_click_of_its_original(original, clipped):
+def test_another_storage_gives_nearly_the_first_click_of_its_original(original, clipped):
     # The clipped storage turns everything below 94 HU into background: the original's first click must not keep the
     # soft tissue as a veil the clipped one cannot show (0.29 of the picture apart when the dense parts were promised
     # half of it). The micro-CT's 8-bit export through a window saturates its densest voxels.

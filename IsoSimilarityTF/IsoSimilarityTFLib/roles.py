@@ -7,9 +7,9 @@ Roles, in the order they are decided (the first that applies):
 
 - ``"background"``: the background class (the thesis' rule: the largest class; see :mod:`.classes`).
 - ``"fog"``: noise in the background: the class's mean bin lies within :attr:`LookRules.fog_separation` noise widths
-  (:func:`noise_width`) of the background's, either side (a micro-CT's noisy air, the haze of an MRI), and so does the
-  largest class of its tissue (the tissue *is* at the background's intensity: noisy air, haze), or most of its voxels
-  touch the background (:attr:`LookRules.rim_contact`: noise scattered in the air). A low class of a tissue whose
+  (:func:`noise_width`) of the background's, either side (a micro-CT's noisy air, the haze of an MRI), and so does its
+  tissue (the tissue *is* at the background's intensity: noisy air, haze; see :func:`tissues_at`), or most of its
+  voxels touch the background (:attr:`LookRules.rim_contact`: noise scattered in the air). A low class of a tissue whose
   largest class stands apart from the background, which does not touch it, is that tissue's darker part or partial
   volume (the outer cortex of a skull-stripped brain), not noise. Whether a tissue lies at the background's
   intensity is counted in the background's noise (:func:`fog_width`): a background of one stored value has none, and
@@ -65,8 +65,12 @@ class LookRules:
         fog_separation: a class whose mean lies within this many noise widths (:func:`noise_width`, or
             :func:`fog_width` for the tissue it belongs to, in bins) of
             the background's mean is at the background's intensity, as noise in it would be: two Gaussians 4 sd
-            apart overlap by under 2.5 % (fog when its tissue's largest class is there too, or it touches the
-            background: see the module notes).
+            apart overlap by under 2.5 % (fog when its tissue is there too, or it touches the background: see the
+            module notes).
+        located_share: a tissue lies at an intensity where more than this share of its voxels do (its median), or
+            its largest class does (the peak of its histogram): where classes of near-equal size share a tissue
+            (a skull-stripped brain's CSF and the cortex's edge), which one is largest changes with the storage,
+            and the median does not.
         dense_separation: a real tissue this many noise widths above another is a different, denser material (bone
             over soft tissue), not a brighter shade of the same one (white over grey matter): it decides the dense
             classes (counted in :func:`noise_width`), a CT's dense tail and which tissues a feature is seen through.
@@ -124,6 +128,7 @@ class LookRules:
 
     real_share: float = 0.01
     fog_separation: float = 4.0
+    located_share: float = 0.5
     dense_separation: float = 4.0
     ramp_start: float = 4.0
     tail_share: float = 1 / 3
@@ -232,7 +237,7 @@ def class_roles(
     distance = np.abs(class_bins - background_bin)
     near = distance < rules.fog_separation * noise_sd
     at_background = distance < rules.fog_separation * (noise_sd if fog_sd is None else fog_sd)
-    tissue_at_background = at_background[[largest_class(tissue_of_class, voxels, t) for t in tissue_of_class]]
+    tissue_at_background = tissues_at(tissue_of_class, voxels, at_background, rules)
     beyond = beyond_structures(classes, tissue_of_class, class_bins, ~tissue_at_background, rules)
     roles = []
     for c in classes:
@@ -286,6 +291,24 @@ def in_real_tissue(
     counted = np.array([0.0 if c.background else float(c.voxels) for c in classes])
     tissue_voxels = np.bincount(tissue_of_class, weights=counted)
     return tissue_voxels[tissue_of_class] >= rules.real_share * max(counted.sum(), 1.0)
+
+
+def tissues_at(tissue_of_class: np.ndarray, voxels: np.ndarray, at: np.ndarray, rules: LookRules = RULES) -> np.ndarray:
+    """``(n_classes,)`` whether the tissue of each class lies where ``at`` holds (:attr:`LookRules.located_share`):
+    where its largest class does, or more than that share of its voxels.
+
+    Args:
+        tissue_of_class: ``(n_classes,)`` tissue id per class. voxels: ``(n_classes,)``. at: ``(n_classes,)`` bool,
+            whether each class lies there (at the background's intensity).
+    """
+    tissue_of_class = np.asarray(tissue_of_class)
+    voxels = np.asarray(voxels, dtype=np.float64)
+    at = np.asarray(at, dtype=bool)
+    by_peak = at[[largest_class(tissue_of_class, voxels, t) for t in tissue_of_class]]
+    held = np.bincount(tissue_of_class, weights=np.where(at, voxels, 0.0))
+    total = np.bincount(tissue_of_class, weights=voxels)
+    by_median = held > rules.located_share * total
+    return by_peak | by_median[tissue_of_class]
 
 
 def largest_class(tissue_of_class: np.ndarray, voxels: np.ndarray, tissue: int) -> int:
