@@ -4,7 +4,13 @@ import numpy as np
 import pytest
 
 from IsoSimilarityTFLib import quantize
-from IsoSimilarityTFLib.quantize import integers_per_bin
+from IsoSimilarityTFLib.quantize import (
+    _LATTICE_CHECK,
+    _LATTICE_PROBE,
+    _LATTICE_TOLERANCE,
+    value_lattice,
+    values_per_bin,
+)
 
 
 def test_uint8_with_256_bins_is_the_identity():
@@ -45,18 +51,64 @@ def test_integer_lookup_path_equals_float_path(shape):
 @pytest.mark.parametrize(
     "value_range, n_bins", [((0.0, 300.0), 256), ((0.0, 255.0), 256), ((-1024.0, 3071.0), 256), ((-3.5, 40.2), 7)]
 )
-def test_integers_per_bin_counts_the_integers_the_binning_puts_in_each_bin(value_range, n_bins):
+def test_values_per_bin_counts_the_integers_the_binning_puts_in_each_bin(value_range, n_bins):
     low, high = value_range
     integers = np.tile(np.arange(np.ceil(low), np.floor(high) + 1), (2, 2, 1))  # each integer 4 times
     binned = quantize(integers, n_bins, value_range=value_range).bins.ravel()
-    np.testing.assert_array_equal(4 * integers_per_bin(value_range, n_bins), np.bincount(binned, minlength=n_bins))
+    np.testing.assert_array_equal(4 * values_per_bin(value_range, n_bins), np.bincount(binned, minlength=n_bins))
 
 
-def test_integers_per_bin_tells_where_integers_fill_bins_unevenly():
-    assert sorted(set(integers_per_bin((0.0, 300.0), 256).tolist())) == [1, 2]  # 301 values: 45 bins hold two
-    assert set(integers_per_bin((0.0, 255.0), 256).tolist()) == {1}
-    assert integers_per_bin((0.25, 0.75), 256) is None  # no integer in the range
-    assert integers_per_bin((0.0, 2.0**40), 256) is None  # beyond the lookup span every bin holds billions
+def test_values_per_bin_tells_where_integers_fill_bins_unevenly():
+    assert sorted(set(values_per_bin((0.0, 300.0), 256).tolist())) == [1, 2]  # 301 values: 45 bins hold two
+    assert set(values_per_bin((0.0, 255.0), 256).tolist()) == {1}
+    assert values_per_bin((0.25, 0.75), 256) is None  # no integer in the range
+    assert values_per_bin((0.0, 2.0**40), 256) is None  # beyond the lookup span every bin holds billions
+
+
+@pytest.mark.parametrize(
+    "slope, intercept", [(0.37, 11.0), (1.0, -1024.0), (0.001, 0.0), (2.5, -3000.0), (0.0123, 5.5)]
+)
+def test_a_float_copy_of_integers_keeps_their_lattice(slope, intercept):
+    # 4001 integers read through a slope as float32 (a NIfTI scl_slope, a DICOM rescale slope): float32 rounds each
+    # value, and a step measured between two neighbours alone misses the far end of the range by several steps.
+    integers = np.random.default_rng(0).integers(0, 4001, 1 << 19)
+    stored = (integers * slope + intercept).astype(np.float32)
+    origin, step = value_lattice(stored)
+    assert step == pytest.approx(slope, rel=1e-6)
+    assert origin == pytest.approx(intercept + slope * integers.min(), abs=1e-3 * slope)
+    scaled_range = (float(stored.min()), float(stored.max()))
+    integer_range = (float(integers.min()), float(integers.max()))
+    np.testing.assert_array_equal(values_per_bin(scaled_range, 256, (origin, step)), values_per_bin(integer_range, 256))
+
+
+def test_the_ends_of_the_range_count_as_float32_rounds_them():
+    # 0..255 through scl_slope 0.37, scl_inter 11: the top, 105.35, is 105.34999847 in float32, 254.99999 steps up.
+    top = float(np.float32(11.0 + 0.37 * 255))
+    np.testing.assert_array_equal(values_per_bin((11.0, top), 256, (11.0, 0.37)), values_per_bin((0.0, 255.0), 256))
+
+
+def test_values_that_do_not_repeat_or_lie_off_a_lattice_have_none():
+    rng = np.random.default_rng(1)
+    assert value_lattice(rng.normal(0.0, 1.0, 1 << 18).astype(np.float32)) is None  # a float CT, resampled data
+    assert value_lattice(np.tile(np.float32([0.0, 1.0, 2.5, 2.7]), 1000)) is None  # gaps of 1, 1.5 and 0.2
+    assert value_lattice(np.arange(10, dtype=np.uint8)) == (0.0, 1.0)  # an integer storage: the integers
+
+
+@pytest.mark.parametrize("extra, distinct, found", [(0, 0, True), (0, 1, False)])
+def test_a_lattice_is_found_where_the_probes_values_repeat_four_times(extra, distinct, found):
+    # The probe holds a quarter as many distinct values as voxels (each value four times): a lattice; one more
+    # distinct value and the values do not repeat enough to tell a lattice from continuous data.
+    count = _LATTICE_PROBE // 4 + distinct
+    values = np.resize(np.arange(count, dtype=np.float32) * np.float32(0.5), _LATTICE_PROBE)
+    assert (value_lattice(values) is not None) is found
+
+
+@pytest.mark.parametrize("offset, found", [(0.9 * _LATTICE_TOLERANCE, True), (1.1 * _LATTICE_TOLERANCE, False)])
+def test_every_checked_value_lies_on_the_lattice_within_the_tolerance(offset, found):
+    # A value the probe did not see, `offset` steps off the lattice of the rest.
+    values = np.resize(np.arange(100, dtype=np.float64), _LATTICE_CHECK)
+    values[_LATTICE_PROBE + 5] = 50.0 + offset
+    assert (value_lattice(values) is not None) is found
 
 
 def test_given_range_clamps_outside_values():

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from IsoSimilarityTFLib import TransferFunctionDesign, design_transfer_function
-from IsoSimilarityTFLib.quantize import _bin_index, integers_per_bin
+from IsoSimilarityTFLib.quantize import _bin_index, values_per_bin
 from IsoSimilarityTFLib.tissues import (
     _EM_ITERATIONS,
     _EM_TOLERANCE,
@@ -88,7 +88,7 @@ def test_integers_filling_bins_unevenly_keep_their_tissues():
     counts = np.bincount(_bin_index(stored, (0.0, 300.0), 256), minlength=256).astype(float)
     every_bin = list(range(256))
     reference = tissue_hierarchy(np.arange(256), one_per_bin, every_bin)
-    uneven = tissue_hierarchy(np.arange(256), counts, every_bin, values_per_bin=integers_per_bin((0.0, 300.0), 256))
+    uneven = tissue_hierarchy(np.arange(256), counts, every_bin, values_per_bin=values_per_bin((0.0, 300.0), 256))
     assert reference.auto == uneven.auto == 2
     assert uneven.noise_sd == pytest.approx(reference.noise_sd, rel=0.05)
 

@@ -8,7 +8,8 @@ density instead ("dense" = at least 300 HU, the bone and contrast that CT preset
   pixel data, micro-CT), an 8-bit export (the range mapped linearly to 0..255), a float32 copy, HU clipped at 0 in
   62.5-HU steps (:func:`hu_clipped_quantized`, as a stented aorta's CTA came), and the head CT's clipped storage
   exported again to 8 bits through an auto-contrast window (a few dozen values over many bins); two MRIs (Colin27
-  coarse, the shared stroke T1) stored as the integers 0..300 (:func:`rescaled_uint16`). The same data: a look that
+  coarse, the shared stroke T1) stored as the integers 0..300 (:func:`rescaled_uint16`), Colin27's also read through
+  a slope as float32 (:func:`slope_scaled`). The same data: a look that
   depends on storage shows in these rows (:data:`VARIANT_GROUPS`; the HU originals are :data:`REFERENCES`).
 - **Resolution variants**: the phantom at 64^3 (3.75 mm), Colin27 at 0.5 mm (``ch2better``) and averaged down to
   2 x 2 x 3 mm (a coarse clinical T1); **voxel-size variants**: the phantom's own voxels with the spacing scaled by
@@ -291,6 +292,19 @@ def rescaled_uint16(load: Callable[[], tuple], top: int) -> Callable[[], tuple]:
         return np.round((values - low) * (top / (high - low))).astype(np.uint16), ijk_to_ras, labels, names, None
 
     return stored
+
+
+def slope_scaled(load: Callable[[], tuple], slope: float, intercept: float) -> Callable[[], tuple]:
+    """``load`` with its values times ``slope`` plus ``intercept``, as float32: how Slicer holds an integer volume
+    stored with a NIfTI ``scl_slope`` or a DICOM rescale slope (the integers' lattice, scaled). Labels and names
+    unchanged; no HU map."""
+
+    def scaled() -> tuple:
+        values, ijk_to_ras, labels, names, _storage = load()
+        scaled_values = (np.asarray(values, dtype=np.float64) * slope + intercept).astype(np.float32)
+        return scaled_values, ijk_to_ras, labels, names, None
+
+    return scaled
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -1035,6 +1049,10 @@ PANEL: tuple[PanelVolume, ...] = (
     PanelVolume("colin27-coarse-uint16", "Colin27 T1 averaged to 2 x 2 x 3 mm, uint16 0..300", "MRI",
                 rescaled_uint16(_colin27_coarse, 300), (), None, _file(TEMPLATES / "ch2.nii.gz"),
                 "Debian mricron-data, block means, stored as a few hundred integers"),
+    PanelVolume("colin27-coarse-scaled", "Colin27 T1 averaged to 2 x 2 x 3 mm, uint16 0..300 with a slope, float32",
+                "MRI", slope_scaled(rescaled_uint16(_colin27_coarse, 300), 0.37, 11.0), (), None,
+                _file(TEMPLATES / "ch2.nii.gz"),
+                "Debian mricron-data, block means, a few hundred integers read through scl_slope 0.37, scl_inter 11"),
     PanelVolume("mni152", "MNI152 T1 (nilearn)", "MRI", lambda: (*_read(_nilearn_t1()), None, None, None), (), None,
                 lambda: _file(_nilearn_t1())(), "nilearn package data"),
     PanelVolume("inia19", "INIA19 macaque T1 brain", "MRI", _file_load(TEMPLATES / "inia19-t1-brain.nii.gz"),
@@ -1096,6 +1114,6 @@ VARIANT_GROUPS: dict[str, tuple[str, ...]] = {
     "micro-CT storages": ("micro-ct", "micro-ct-8bit"),
     "specimen storages": ("specimen-ct", "specimen-ct-8bit"),
     "abdomen CT storages": ("abdomen-ct", "abdomen-ct-8bit"),
-    "T1 head storages": ("colin27-coarse", "colin27-coarse-uint16"),
+    "T1 head storages": ("colin27-coarse", "colin27-coarse-uint16", "colin27-coarse-scaled"),
     "stroke T1 storages": ("mr-brain-stroke-t1", "mr-brain-stroke-t1-uint16"),
 }

@@ -19,7 +19,15 @@ from .gallery import GalleryLook, LookContext, check_look, first_look_name, gall
 from .look import bin_opacity_of, class_mean_values, detect_kind, gradient_ramp_top
 from .memory import check_memory
 from .options import DEFAULT_OPTIONS, KINDS, LOOK_NAMES, OPTIONS, check_options
-from .quantize import Quantization, bin_volume, bins_dtype, checked_n_bins, integers_per_bin, resolved_value_range
+from .quantize import (
+    Quantization,
+    bin_volume,
+    bins_dtype,
+    checked_n_bins,
+    resolved_value_range,
+    value_lattice,
+    values_per_bin,
+)
 from .roles import is_constant_background
 from .similarity import IsovalueSimilarity, isovalue_similarity
 from .source import VolumeSource
@@ -779,15 +787,17 @@ def _binned(
     opts: dict,
     progress: Callable[[float], None],
     value_tap: Optional[Callable[[int, np.ndarray], None]] = None,
-) -> tuple[VolumeSource, tuple[float, float], Optional[RobustRange]]:
-    """The volume's bins (lazy for a dask volume: binned as the stream reads it), the value range they cover, and
-    what the default range left out (None: nothing, or a range was given).
+) -> tuple[VolumeSource, tuple[float, float], Optional[RobustRange], Optional[np.ndarray]]:
+    """The volume's bins (lazy for a dask volume: binned as the stream reads it), the value range they cover, what
+    the default range left out (None: nothing, or a range was given), and how many values the storage can put in
+    each bin (:func:`.quantize.values_per_bin` on the lattice of the survey's sample; None where it cannot tell, and
+    for bins given: they say nothing of how the values were stored).
 
     The survey (one pass: :func:`~.survey.survey_volume`) gives the range the rules of :mod:`.value_range` decide on
     (padding and outliers left out) unless ``opts["value_range"]`` gives one.
     """
     if isinstance(source, Quantization):
-        return VolumeSource(source.bins), tuple(source.value_range), None
+        return VolumeSource(source.bins), tuple(source.value_range), None, None
     n_bins = opts["n_bins"]
     survey = survey_volume(source, progress=progress, tap=value_tap)
     data_range = checked_data_range(survey, n_bins)
@@ -796,7 +806,9 @@ def _binned(
         robust = None
     value_range = resolved_value_range(robust.value_range if robust else opts["value_range"], data_range)
     binning = partial(bin_volume, n_bins=n_bins, value_range=value_range, data_range=data_range)
-    return source.map_slabs(binning, bins_dtype(n_bins)), value_range, robust
+    lattice = value_lattice(survey.sample)
+    per_bin = values_per_bin(value_range, n_bins, lattice) if lattice is not None else None
+    return source.map_slabs(binning, bins_dtype(n_bins)), value_range, robust, per_bin
 
 
 def design_transfer_function(
@@ -854,10 +866,8 @@ def design_transfer_function(
         timings[name] = time.perf_counter() - start
 
     source = _source(values, opts)
-    # An already quantized volume's bins say nothing of how its values were stored.
-    integer_storage = isinstance(source, VolumeSource) and np.issubdtype(source.dtype, np.integer)
     with stage("quantize", "quantizing"):
-        bins, value_range, robust = _binned(
+        bins, value_range, robust, per_bin = _binned(
             source, opts, lambda fraction: report("quantize", fraction, "quantize: value range"), value_tap
         )
     n_bins, shape = opts["n_bins"], bins.shape
@@ -895,7 +905,7 @@ def design_transfer_function(
             bin_voxels,
             [c.id for c in classes if c.id != background],
             similarity.matrix,
-            values_per_bin=integers_per_bin(value_range, n_bins) if integer_storage else None,
+            values_per_bin=per_bin,
         )
         preview = Preview(tap.preview(), preview_spacing, n_bins)
         kind = _detect_kind(hierarchy, clusters.labels, bin_voxels, preview, opts["modality"])

@@ -12,6 +12,11 @@ from .source import VolumeSource, validate_volume
 _FLOAT_CHUNK = 1 << 16
 # Integer volumes whose value span is at most this many values are quantized through a lookup table.
 _MAX_LOOKUP_SPAN = 1 << 22
+# Sampled values whose distinct values tell whether a float storage's values repeat (a lattice), and those checked
+# to lie on it; within this many steps of it (float32 rounds a value of 10^4 to 10^-3).
+_LATTICE_PROBE = 1 << 16
+_LATTICE_CHECK = 1 << 18
+_LATTICE_TOLERANCE = 0.01
 # Voxels looked up at once: small enough that the index array stays in cache.
 _LOOKUP_CHUNK = 1 << 20
 #: Largest magnitude of a value range: the design sums values weighted by voxel counts (up to 2^64) and takes their
@@ -157,18 +162,50 @@ def resolved_value_range(value_range, data_range: tuple[float, float]) -> tuple[
     return low, high
 
 
-def integers_per_bin(value_range: tuple[float, float], n_bins: int) -> Optional[np.ndarray]:
-    """How many integers each bin holds, ``(n_bins,)`` int64, binned as :func:`bin_volume` bins them (the last bin
-    holding its upper edge): the values an integer storage can put in each bin. They differ from bin to bin where the
-    integers do not divide evenly into the bins (301 values over 256 bins: 1 or 2 each; a uint16 MRI of values
-    0..300), and a histogram of such data is that pattern times the tissues' density. None beyond the span
-    :func:`bin_volume` bins through a lookup table, where every bin holds thousands and they differ by one."""
+def value_lattice(sample: np.ndarray) -> Optional[tuple[float, float]]:
+    """``(origin, step)`` of the lattice a volume's values lie on, from a sample of them (any shape): the integers,
+    ``(0, 1)``, for an integer dtype; for floats, the lattice of an integer storage scaled by a slope (a NIfTI
+    ``scl_slope``, a DICOM rescale slope, a float copy of an 8-bit export), found where the sample's values repeat
+    (:data:`_LATTICE_PROBE` of them hold at most a quarter as many distinct values) and every sampled value lies
+    within :data:`_LATTICE_TOLERANCE` steps of the lattice the gaps between them span. None otherwise:
+    values that do not repeat (a float CT, a resampled volume) fill every bin evenly."""
+    sample = np.asarray(sample).ravel()
+    if np.issubdtype(sample.dtype, np.integer):
+        return 0.0, 1.0
+    probe = np.unique(sample[:_LATTICE_PROBE].astype(np.float64))
+    if not 2 <= probe.size <= min(sample.size, _LATTICE_PROBE) // 4:
+        return None
+    # Each gap between distinct values is a whole number of steps; measured gap by gap, float32's rounding does not
+    # add up, and the step is then the span over their sum.
+    gaps = np.diff(probe)
+    multiples = gaps / gaps.min()
+    if np.abs(multiples - np.rint(multiples)).max() > _LATTICE_TOLERANCE:
+        return None
+    origin, step = float(probe[0]), float((probe[-1] - probe[0]) / np.rint(multiples).sum())
+    checked = (sample[:_LATTICE_CHECK].astype(np.float64) - origin) / step
+    if np.abs(checked - np.rint(checked)).max() > _LATTICE_TOLERANCE:
+        return None
+    return origin, step
+
+
+def values_per_bin(
+    value_range: tuple[float, float], n_bins: int, lattice: tuple[float, float] = (0.0, 1.0)
+) -> Optional[np.ndarray]:
+    """How many values of a storage's ``lattice`` (``(origin, step)``, :func:`value_lattice`; the integers by
+    default) each bin holds, ``(n_bins,)`` int64, binned as :func:`bin_volume` bins them (the last bin holding its
+    upper edge): the values the storage can put in each bin. They differ from bin to bin where the values do not
+    divide evenly into the bins (301 values over 256 bins: 1 or 2 each; a uint16 MRI of values 0..300), and a
+    histogram of such data is that pattern times the tissues' density. None beyond the span :func:`bin_volume` bins
+    through a lookup table, where every bin holds thousands and they differ by one."""
     low, high = value_range
-    first, last = int(np.ceil(low)), int(np.floor(high))
+    origin, step = lattice
+    # The range's ends are stored values, rounded as the storage rounds them (float32): within the tolerance.
+    first = int(np.ceil((low - origin) / step - _LATTICE_TOLERANCE))
+    last = int(np.floor((high - origin) / step + _LATTICE_TOLERANCE))
     if last < first or last - first >= _MAX_LOOKUP_SPAN:
         return None
-    integers = np.arange(first, last + 1, dtype=np.float64)
-    return np.bincount(_bin_index(integers, value_range, n_bins), minlength=n_bins)
+    values = origin + step * np.arange(first, last + 1, dtype=np.float64)
+    return np.bincount(_bin_index(values, value_range, n_bins), minlength=n_bins)
 
 
 def _bin_index(values: np.ndarray, value_range: tuple[float, float], n_bins: int) -> np.ndarray:

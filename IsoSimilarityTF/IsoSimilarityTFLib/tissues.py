@@ -422,7 +422,7 @@ def tissue_hierarchy(
             criterion does).
         model: the intensity model (default: :func:`choose_intensity_model` on the classes' bins).
         values_per_bin: ``(n_bins,)`` how many values the storage can put in each bin
-            (:func:`.quantize.integers_per_bin`), or None where every bin can hold as many. The default model is
+            (:func:`.quantize.values_per_bin`), or None where every bin can hold as many. The default model is
             fitted to the voxels per stored value: an integer storage that puts one value in some bins and two in
             others (301 values over 256 bins) makes every sixth bin of the histogram twice as full, a pattern of
             the storage that the model would otherwise fit as tissues (a T1 head stored as uint16 0..300 was taken
