@@ -94,6 +94,14 @@ def test_values_that_do_not_repeat_or_lie_off_a_lattice_have_none():
     assert value_lattice(np.arange(10, dtype=np.uint8)) == (0.0, 1.0)  # an integer storage: the integers
 
 
+@pytest.mark.filterwarnings("error")
+def test_a_hostile_sample_has_no_lattice_and_no_warning():
+    assert value_lattice(np.tile([np.nan, 1.0, 2.0], 100)) is None
+    assert value_lattice(np.tile([0.0, 1.0, np.inf], 100)) is None
+    assert value_lattice(np.tile([0.0, 5e-324, 1e-323, 1e289], 100)) is None  # gaps 5e-324 apart over 1e289: inf steps
+    assert values_per_bin((0.0, 1e289), 256, (0.0, 5e-324)) is None
+
+
 @pytest.mark.parametrize("extra, distinct, found", [(0, 0, True), (0, 1, False)])
 def test_a_lattice_is_found_where_the_probes_values_repeat_four_times(extra, distinct, found):
     # The probe holds a quarter as many distinct values as voxels (each value four times): a lattice; one more

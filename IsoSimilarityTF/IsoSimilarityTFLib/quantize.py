@@ -177,14 +177,18 @@ def value_lattice(sample: np.ndarray) -> Optional[tuple[float, float]]:
         return None
     # Each gap between distinct values is a whole number of steps; measured gap by gap, float32's rounding does not
     # add up, and the step is then the span over their sum.
-    gaps = np.diff(probe)
-    multiples = gaps / gaps.min()
-    if np.abs(multiples - np.rint(multiples)).max() > _LATTICE_TOLERANCE:
-        return None
-    origin, step = float(probe[0]), float((probe[-1] - probe[0]) / np.rint(multiples).sum())
-    checked = (sample[:_LATTICE_CHECK].astype(np.float64) - origin) / step
-    if np.abs(checked - np.rint(checked)).max() > _LATTICE_TOLERANCE:
-        return None
+    # Comparisons are NaN-safe (``all`` of ``<=``) and an overflow to inf fails them: no warning to the user.
+    with np.errstate(over="ignore", invalid="ignore"):
+        gaps = np.diff(probe)
+        multiples = gaps / gaps.min()
+        steps = np.rint(multiples)
+        # At most as many steps as binning through a lookup table takes.
+        if not np.all(np.abs(multiples - steps) <= _LATTICE_TOLERANCE) or not steps.sum() < _MAX_LOOKUP_SPAN:
+            return None
+        origin, step = float(probe[0]), float((probe[-1] - probe[0]) / steps.sum())
+        checked = (sample[:_LATTICE_CHECK].astype(np.float64) - origin) / step
+        if not np.all(np.abs(checked - np.rint(checked)) <= _LATTICE_TOLERANCE):
+            return None
     return origin, step
 
 
@@ -200,10 +204,11 @@ def values_per_bin(
     low, high = value_range
     origin, step = lattice
     # The range's ends are stored values, rounded as the storage rounds them (float32): within the tolerance.
-    first = int(np.ceil((low - origin) / step - _LATTICE_TOLERANCE))
-    last = int(np.floor((high - origin) / step + _LATTICE_TOLERANCE))
-    if last < first or last - first >= _MAX_LOOKUP_SPAN:
-        return None
+    with np.errstate(over="ignore", invalid="ignore"):
+        first = np.ceil((low - origin) / step - _LATTICE_TOLERANCE)
+        last = np.floor((high - origin) / step + _LATTICE_TOLERANCE)
+        if not 0 <= last - first < _MAX_LOOKUP_SPAN:  # also False for an overflow to inf, or NaN
+            return None
     values = origin + step * np.arange(first, last + 1, dtype=np.float64)
     return np.bincount(_bin_index(values, value_range, n_bins), minlength=n_bins)
 
