@@ -102,8 +102,8 @@ def test_a_hostile_sample_has_no_lattice_and_no_warning():
     assert values_per_bin((0.0, 1e289), 256, (0.0, 5e-324)) is None
 
 
-@pytest.mark.parametrize("extra, distinct, found", [(0, 0, True), (0, 1, False)])
-def test_a_lattice_is_found_where_the_probes_values_repeat_four_times(extra, distinct, found):
+@pytest.mark.parametrize("distinct, found", [(0, True), (1, False)])
+def test_a_lattice_is_found_where_the_probes_values_repeat_four_times(distinct, found):
     # The probe holds a quarter as many distinct values as voxels (each value four times): a lattice; one more
     # distinct value and the values do not repeat enough to tell a lattice from continuous data.
     count = _LATTICE_PROBE // 4 + distinct
@@ -113,10 +113,40 @@ def test_a_lattice_is_found_where_the_probes_values_repeat_four_times(extra, dis
 
 @pytest.mark.parametrize("offset, found", [(0.9 * _LATTICE_TOLERANCE, True), (1.1 * _LATTICE_TOLERANCE, False)])
 def test_every_checked_value_lies_on_the_lattice_within_the_tolerance(offset, found):
-    # A value the probe did not see, `offset` steps off the lattice of the rest.
-    values = np.resize(np.arange(100, dtype=np.float64), _LATTICE_CHECK)
-    values[_LATTICE_PROBE + 5] = 50.0 + offset
+    # A value the probe did not see (it takes every fourth), `offset` steps off the lattice of the rest.
+    values = np.random.default_rng(2).integers(0, 100, _LATTICE_CHECK).astype(np.float64)
+    values[5] = 50.0 + offset
     assert (value_lattice(values) is not None) is found
+
+
+def test_a_lattice_is_found_behind_padding():
+    # A volume's first planes all one value (the intercept: padding), as many as the probe takes and more.
+    integers = np.random.default_rng(3).integers(0, 301, 1 << 21)
+    integers[: 2 * _LATTICE_PROBE] = 0
+    assert value_lattice((integers * 0.37 + 11.0).astype(np.float32)) == pytest.approx((11.0, 0.37))
+    # ... and values off it after the part a check of the first values would read are seen
+    off = (integers * 0.37 + 11.0).astype(np.float32)
+    off[_LATTICE_CHECK:] += np.float32(0.1)
+    assert value_lattice(off) is None
+
+
+@pytest.mark.parametrize("n_bins", [7, 256, 4096])
+@pytest.mark.parametrize("slope", [0.13, 0.37, -0.61, 1.7e-3, 250.0])
+@pytest.mark.parametrize("inside", [False, True])
+def test_values_per_bin_counts_the_stored_values_quantize_puts_in_each_bin(n_bins, slope, inside):
+    # Integers 0..300 times a slope in float32 arithmetic, as a reader applies scl_slope: values on a bin edge are
+    # rounded either way, and each must be counted in the bin quantize puts it in. `inside`: a range cutting into
+    # the data, whose values beyond it are clamped into the end bins and are not the lattice's there.
+    integers = np.random.default_rng(4).permutation(np.tile(np.arange(301), 8))
+    stored = integers.astype(np.float32) * np.float32(slope)
+    low, high = sorted((float(stored.min()), float(stored.max())))
+    # Inside: ends between two values (one on a value is clamped or not as float32 rounds it).
+    value_range = (low + 0.1013 * (high - low), high - 0.1013 * (high - low)) if inside else (low, high)
+    distinct = np.unique(stored).astype(np.float64)
+    distinct = distinct[(distinct >= value_range[0]) & (distinct <= value_range[1])]
+    binned = quantize(np.tile(distinct, (2, 2, 1)), n_bins, value_range=value_range).bins.ravel()  # each 4 times
+    counted = values_per_bin(value_range, n_bins, value_lattice(stored), stored)
+    np.testing.assert_array_equal(4 * counted, np.bincount(binned, minlength=n_bins))
 
 
 def test_given_range_clamps_outside_values():

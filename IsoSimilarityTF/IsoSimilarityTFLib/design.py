@@ -807,7 +807,7 @@ def _binned(
     value_range = resolved_value_range(robust.value_range if robust else opts["value_range"], data_range)
     binning = partial(bin_volume, n_bins=n_bins, value_range=value_range, data_range=data_range)
     lattice = value_lattice(survey.sample)
-    per_bin = values_per_bin(value_range, n_bins, lattice) if lattice is not None else None
+    per_bin = values_per_bin(value_range, n_bins, lattice, survey.sample) if lattice is not None else None
     return source.map_slabs(binning, bins_dtype(n_bins)), value_range, robust, per_bin
 
 

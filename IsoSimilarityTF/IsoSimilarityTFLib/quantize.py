@@ -166,41 +166,51 @@ def value_lattice(sample: np.ndarray) -> Optional[tuple[float, float]]:
     """``(origin, step)`` of the lattice a volume's values lie on, from a sample of them (any shape): the integers,
     ``(0, 1)``, for an integer dtype; for floats, the lattice of an integer storage scaled by a slope (a NIfTI
     ``scl_slope``, a DICOM rescale slope, a float copy of an 8-bit export), found where the sample's values repeat
-    (:data:`_LATTICE_PROBE` of them hold at most a quarter as many distinct values) and every sampled value lies
-    within :data:`_LATTICE_TOLERANCE` steps of the lattice the gaps between them span. None otherwise:
-    values that do not repeat (a float CT, a resampled volume) fill every bin evenly."""
+    (:data:`_LATTICE_PROBE` of them, spread over the sample, hold at most a quarter as many distinct values) and
+    :data:`_LATTICE_CHECK` values spread over it lie within :data:`_LATTICE_TOLERANCE` steps of the lattice the gaps
+    between the distinct ones span. None otherwise: values that do not repeat (a float CT, a resampled volume) fill
+    every bin evenly."""
     sample = np.asarray(sample).ravel()
     if np.issubdtype(sample.dtype, np.integer):
         return 0.0, 1.0
-    probe = np.unique(sample[:_LATTICE_PROBE].astype(np.float64))
-    if not 2 <= probe.size <= min(sample.size, _LATTICE_PROBE) // 4:
+    probe = _spread(sample, _LATTICE_PROBE)
+    distinct = np.unique(probe.astype(np.float64))
+    if not 2 <= distinct.size <= probe.size // 4:
         return None
     # Each gap between distinct values is a whole number of steps; measured gap by gap, float32's rounding does not
     # add up, and the step is then the span over their sum.
     # Comparisons are NaN-safe (``all`` of ``<=``) and an overflow to inf fails them: no warning to the user.
     with np.errstate(over="ignore", invalid="ignore"):
-        gaps = np.diff(probe)
+        gaps = np.diff(distinct)
         multiples = gaps / gaps.min()
         steps = np.rint(multiples)
         # At most as many steps as binning through a lookup table takes.
         if not np.all(np.abs(multiples - steps) <= _LATTICE_TOLERANCE) or not steps.sum() < _MAX_LOOKUP_SPAN:
             return None
-        origin, step = float(probe[0]), float((probe[-1] - probe[0]) / steps.sum())
-        checked = (sample[:_LATTICE_CHECK].astype(np.float64) - origin) / step
+        origin, step = float(distinct[0]), float((distinct[-1] - distinct[0]) / steps.sum())
+        checked = (_spread(sample, _LATTICE_CHECK).astype(np.float64) - origin) / step
         if not np.all(np.abs(checked - np.rint(checked)) <= _LATTICE_TOLERANCE):
             return None
     return origin, step
 
 
 def values_per_bin(
-    value_range: tuple[float, float], n_bins: int, lattice: tuple[float, float] = (0.0, 1.0)
+    value_range: tuple[float, float],
+    n_bins: int,
+    lattice: tuple[float, float] = (0.0, 1.0),
+    stored: Optional[np.ndarray] = None,
 ) -> Optional[np.ndarray]:
     """How many values of a storage's ``lattice`` (``(origin, step)``, :func:`value_lattice`; the integers by
     default) each bin holds, ``(n_bins,)`` int64, binned as :func:`bin_volume` bins them (the last bin holding its
     upper edge): the values the storage can put in each bin. They differ from bin to bin where the values do not
     divide evenly into the bins (301 values over 256 bins: 1 or 2 each; a uint16 MRI of values 0..300), and a
     histogram of such data is that pattern times the tissues' density. None beyond the span :func:`bin_volume` bins
-    through a lookup table, where every bin holds thousands and they differ by one."""
+    through a lookup table, where every bin holds thousands and they differ by one.
+
+    ``stored``: values of the volume (a sample, any shape). A lattice value they hold lies where its stored value
+    does: on a bin's edge (or the range's), float32 rounds it either way (``k * 0.13`` computed in float32 or in
+    float64), and which way moves it to the next bin.
+    """
     low, high = value_range
     origin, step = lattice
     # The range's ends are stored values, rounded as the storage rounds them (float32): within the tolerance.
@@ -210,7 +220,22 @@ def values_per_bin(
         if not 0 <= last - first < _MAX_LOOKUP_SPAN:  # also False for an overflow to inf, or NaN
             return None
     values = origin + step * np.arange(first, last + 1, dtype=np.float64)
-    return np.bincount(_bin_index(values, value_range, n_bins), minlength=n_bins)
+    bins = _bin_index(values, value_range, n_bins)
+    in_range = np.ones(values.size, dtype=bool)
+    if stored is not None:
+        seen = _spread(np.asarray(stored).ravel(), _LATTICE_CHECK).astype(np.float64)
+        index = np.rint((seen - origin) / step) - first
+        on_lattice = (index >= 0) & (index < values.size)
+        index, seen = index[on_lattice].astype(np.int64), seen[on_lattice]
+        bins[index] = _bin_index(seen, value_range, n_bins)
+        in_range[index] = (seen >= low) & (seen <= high)
+    return np.bincount(bins[in_range], minlength=n_bins)
+
+
+def _spread(values: np.ndarray, count: int) -> np.ndarray:
+    """About ``count`` (``count`` to ``2 * count``) of ``values`` ``(n,)``, evenly spaced over them: a volume's first
+    planes may all be padding."""
+    return values[:: max(1, values.size // count)]
 
 
 def _bin_index(values: np.ndarray, value_range: tuple[float, float], n_bins: int) -> np.ndarray:
