@@ -49,11 +49,40 @@ def test_integer_lookup_path_equals_float_path(shape):
 
 
 @pytest.mark.parametrize(
-    "value_range, n_bins", [((0.0, 300.0), 256), ((0.0, 255.0), 256), ((-1024.0, 3071.0), 256), ((-3.5, 40.2), 7)]
+    "dtype, first",
+    [
+        (np.int32, -(2**31)),
+        (np.uint32, 2**32 - 70_000),
+        (np.int64, 2**53),
+        (np.int64, -(2**62)),
+        (np.uint64, 2**64 - 65_536),
+    ],
+)
+def test_wide_integers_are_binned_as_their_float64_values_at_any_magnitude(dtype, first):
+    # 2^53 and beyond, np.arange in float64 stepped by nothing: every voxel fell in one bin, and the design went on
+    # with one class.
+    values = (np.arange(65_536, dtype=np.uint64) + np.uint64(first % 2**64)).astype(dtype).reshape(16, 64, 64)
+    integer = quantize(values, 7)
+    np.testing.assert_array_equal(
+        integer.bins, quantize(values.astype(np.float64), 7, value_range=integer.value_range).bins
+    )
+    assert integer.voxel_counts().min() > 0.8 * values.size / 7
+
+
+@pytest.mark.parametrize(
+    "value_range, n_bins",
+    [
+        ((0.0, 300.0), 256),
+        ((0.0, 255.0), 256),
+        ((-1024.0, 3071.0), 256),
+        ((-3.5, 40.2), 7),
+        ((2.0**53, 2.0**53 + 69), 7),  # float64 holds every other integer there: pairs share a value
+    ],
 )
 def test_values_per_bin_counts_the_integers_the_binning_puts_in_each_bin(value_range, n_bins):
     low, high = value_range
-    integers = np.tile(np.arange(np.ceil(low), np.floor(high) + 1), (2, 2, 1))  # each integer 4 times
+    first, last = int(np.ceil(low)), int(np.floor(high))
+    integers = np.tile(first + np.arange(last - first + 1, dtype=np.int64), (2, 2, 1))  # each integer 4 times
     binned = quantize(integers, n_bins, value_range=value_range).bins.ravel()
     np.testing.assert_array_equal(4 * values_per_bin(value_range, n_bins), np.bincount(binned, minlength=n_bins))
 

@@ -219,7 +219,8 @@ def values_per_bin(
         last = np.floor((high - origin) / step + _LATTICE_TOLERANCE)
         if not 0 <= last - first < _MAX_LOOKUP_SPAN:  # also False for an overflow to inf, or NaN
             return None
-    values = origin + step * np.arange(first, last + 1, dtype=np.float64)
+    # Not np.arange(first, ...): beyond 2^53 its float64 steps of one add nothing, and every value is the first.
+    values = origin + step * (first + np.arange(last - first + 1, dtype=np.float64))
     bins = _bin_index(values, value_range, n_bins)
     in_range = np.ones(values.size, dtype=bool)
     if stored is not None:
@@ -304,12 +305,18 @@ def bin_volume(
         for start in range(0, flat_in.size, _LOOKUP_CHUNK):
             np.take(table, raw[start : start + _LOOKUP_CHUNK], out=flat_out[start : start + _LOOKUP_CHUNK])
     elif np.issubdtype(values.dtype, np.integer) and span < _MAX_LOOKUP_SPAN:
-        # Likewise for wider integers whose values span few numbers: every value present is binned once.
-        offset = int(data_range[0])
-        table = _bin_index(np.arange(offset, offset + int(span) + 1, dtype=np.float64), value_range, n_bins)
-        table = table.astype(out_dtype)
+        # Likewise for wider integers whose values span few numbers: every value present is binned once, as the
+        # float path bins it (float64 of the value). The table's values and indices are taken in the volume's own
+        # integer type (exact at any magnitude: np.arange in float64 adds nothing beyond 2^53), and it reaches a
+        # float64 spacing beyond data_range, which is rounded to float64.
+        dtype = values.dtype.newbyteorder("=")
+        info = np.iinfo(dtype)
+        pad = int(np.spacing(max(abs(data_range[0]), abs(data_range[1])))) + 1
+        first, last = max(int(data_range[0]) - pad, info.min), min(int(data_range[1]) + pad, info.max)
+        codes = np.arange(last - first + 1, dtype=dtype) + dtype.type(first)
+        table = _bin_index(codes.astype(np.float64), value_range, n_bins).astype(out_dtype)
         for start in range(0, flat_in.size, _LOOKUP_CHUNK):
-            chunk = flat_in[start : start + _LOOKUP_CHUNK].astype(np.int64) - offset
+            chunk = (flat_in[start : start + _LOOKUP_CHUNK] - dtype.type(first)).astype(np.intp)
             np.take(table, chunk, out=flat_out[start : start + _LOOKUP_CHUNK])
     else:
         # Cast straight to the bins' type: 6-8x faster than through _bin_index's int64.
