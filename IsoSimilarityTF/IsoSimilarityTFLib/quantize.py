@@ -223,7 +223,8 @@ def values_per_bin(
     values = origin + step * (first + np.arange(last - first + 1, dtype=np.float64))
     bins = _bin_index(values, value_range, n_bins)
     in_range = np.ones(values.size, dtype=bool)
-    if stored is not None:
+    # Integers (below 2^53) are their lattice values exactly: nothing to look up.
+    if stored is not None and not np.issubdtype(np.asarray(stored).dtype, np.integer):
         seen = _spread(np.asarray(stored).ravel(), _LATTICE_CHECK).astype(np.float64)
         index = np.rint((seen - origin) / step) - first
         on_lattice = (index >= 0) & (index < values.size)
@@ -307,8 +308,8 @@ def bin_volume(
     elif np.issubdtype(values.dtype, np.integer) and span < _MAX_LOOKUP_SPAN:
         # Likewise for wider integers whose values span few numbers: every value present is binned once, as the
         # float path bins it (float64 of the value). The table's values and indices are taken in the volume's own
-        # integer type (exact at any magnitude: np.arange in float64 adds nothing beyond 2^53), and it reaches a
-        # float64 spacing beyond data_range, which is rounded to float64.
+        # integer type (exact at any magnitude: np.arange in float64 adds nothing beyond 2^53); data_range is
+        # rounded to float64, so the table reaches one float64 spacing beyond it.
         dtype = values.dtype.newbyteorder("=")
         info = np.iinfo(dtype)
         pad = int(np.spacing(max(abs(data_range[0]), abs(data_range[1])))) + 1
