@@ -8,8 +8,8 @@ density instead ("dense" = at least 300 HU, the bone and contrast that CT preset
   pixel data, micro-CT), an 8-bit export (the range mapped linearly to 0..255), a float32 copy, HU clipped at 0 in
   62.5-HU steps (:func:`hu_clipped_quantized`, as a stented aorta's CTA came), and the head CT's clipped storage
   exported again to 8 bits through an auto-contrast window (a few dozen values over many bins); two MRIs (Colin27
-  coarse, the shared stroke T1) stored as the integers 0..300 (:func:`rescaled_uint16`), Colin27's also read through
-  a slope as float32 (:func:`slope_scaled`). The same data: a look that
+  coarse, the shared stroke T1) stored as the integers 0..300 (:func:`rescaled_uint16`; the stroke T1 also as
+  0..600, a loss), Colin27's also read through a slope as float32 (:func:`slope_scaled`). The same data: a look that
   depends on storage shows in these rows (:data:`VARIANT_GROUPS`; the HU originals are :data:`REFERENCES`).
 - **Resolution variants**: the phantom at 64^3 (3.75 mm), Colin27 at 0.5 mm (``ch2better``) and averaged down to
   2 x 2 x 3 mm (a coarse clinical T1); **voxel-size variants**: the phantom's own voxels with the spacing scaled by
@@ -1090,6 +1090,9 @@ PANEL: tuple[PanelVolume, ...] = (
     PanelVolume("mr-brain-stroke-t1-uint16", "Brain T1 MRI after a stroke, uint16 0..300 (real, re-stored)", "MRI",
                 rescaled_uint16(real_load(_STROKE_T1), 300), _STROKE_T1.shown_for, _STROKE_T1.fog,
                 _file(_STROKE_T1.path), f"../shared/data/mr-brain-stroke-t1.nii.gz, re-stored: {_STROKE_T1.source}"),
+    PanelVolume("mr-brain-stroke-t1-uint16-600", "Brain T1 MRI after a stroke, uint16 0..600 (real, re-stored)", "MRI",
+                rescaled_uint16(real_load(_STROKE_T1), 600), _STROKE_T1.shown_for, _STROKE_T1.fog,
+                _file(_STROKE_T1.path), f"../shared/data/mr-brain-stroke-t1.nii.gz, re-stored: {_STROKE_T1.source}"),
 )  # fmt: skip
 
 #: The HU originals of the re-stored volumes: compare.py has them as ``phantom`` and ``head-ct``; look_panel.py
@@ -1115,5 +1118,5 @@ VARIANT_GROUPS: dict[str, tuple[str, ...]] = {
     "specimen storages": ("specimen-ct", "specimen-ct-8bit"),
     "abdomen CT storages": ("abdomen-ct", "abdomen-ct-8bit"),
     "T1 head storages": ("colin27-coarse", "colin27-coarse-uint16", "colin27-coarse-scaled"),
-    "stroke T1 storages": ("mr-brain-stroke-t1", "mr-brain-stroke-t1-uint16"),
+    "stroke T1 storages": ("mr-brain-stroke-t1", "mr-brain-stroke-t1-uint16", "mr-brain-stroke-t1-uint16-600"),
 }
