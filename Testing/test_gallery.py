@@ -67,6 +67,15 @@ def test_a_low_class_is_fog_where_most_of_its_tissues_voxels_lie_at_the_backgrou
     assert roles == ["background", role, role, "bulk"]
 
 
+def test_a_tissue_mostly_at_the_background_keeps_its_far_peak():
+    # A CT cropped to the body: soft tissue is the background (bin 50), the lungs the one structure below it; the
+    # bone's tissue is mostly its partial volume with the soft tissue (bins 51 and 52), its peak far above (bin 100).
+    # The partial volume is at the background's intensity; the bone is a structure, not noise beyond the background.
+    classes = make_classes([500_000, 50_000, 10_000, 10_000, 15_000], contact=[1.0, 0.0, 0.0, 0.0, 0.0])
+    roles = class_roles(classes, np.array([0, 1, 2, 2, 2]), np.array([50.0, 10.0, 51.0, 52.0, 100.0]), 1.0)
+    assert roles == ["background", "bulk", "fog", "fog", "dense"]
+
+
 def air_around_a_tube(below=0):
     """Roles of: ethanol, the background (bin 40); the air's noise tissue below it (its largest class 3 noise widths
     down, its tail 6); the specimen above (bin 100); and ``below`` voxels of a tissue of their own far below (bin 0)."""

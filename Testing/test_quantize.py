@@ -56,6 +56,7 @@ def test_integer_lookup_path_equals_float_path(shape):
         (np.int64, 2**53),
         (np.int64, -(2**62)),
         (np.uint64, 2**64 - 65_536),
+        (np.uint64, 2**63 - 1),  # float64 rounds its minimum up to 2^63: the table reaches a spacing beyond
     ],
 )
 def test_wide_integers_are_binned_as_their_float64_values_at_any_magnitude(dtype, first):
@@ -111,9 +112,18 @@ def test_a_float_copy_of_integers_keeps_their_lattice(slope, intercept):
 
 
 def test_the_ends_of_the_range_count_as_float32_rounds_them():
-    # 0..255 through scl_slope 0.37, scl_inter 11: the top, 105.35, is 105.34999847 in float32, 254.99999 steps up.
+    # 0..255 through scl_slope 0.37, scl_inter 11: the top, 105.35, is 105.34999847 in float32, 254.99999 steps up,
+    # and the sample holds no voxel of it.
     top = float(np.float32(11.0 + 0.37 * 255))
-    np.testing.assert_array_equal(values_per_bin((11.0, top), 256, (11.0, 0.37)), values_per_bin((0.0, 255.0), 256))
+    sample = (np.arange(255) * 0.37 + 11.0).astype(np.float32)
+    counted = values_per_bin((11.0, top), 256, (11.0, 0.37), sample)
+    np.testing.assert_array_equal(counted, values_per_bin((0.0, 255.0), 256))
+
+
+@pytest.mark.parametrize("value_range", [(0.005, 300.0), (0.0, 299.995)])
+def test_integers_just_outside_a_given_range_are_not_counted(value_range):
+    # A range the user gives, a two-hundredth inside the integers 0 and 300: 300 of them lie in it.
+    assert values_per_bin(value_range, 256).sum() == 300
 
 
 def test_values_that_do_not_repeat_or_lie_off_a_lattice_have_none():
@@ -153,9 +163,10 @@ def test_a_lattice_is_found_behind_padding():
     integers = np.random.default_rng(3).integers(0, 301, 1 << 21)
     integers[: 2 * _LATTICE_PROBE] = 0
     assert value_lattice((integers * 0.37 + 11.0).astype(np.float32)) == pytest.approx((11.0, 0.37))
-    # ... and values off it after the part a check of the first values would read are seen
+    # ... and values off it that the probe (every 32nd of 2^21) skips, after the part a check of the first 2^18 values
+    # would read, are seen by the check (every 8th)
     off = (integers * 0.37 + 11.0).astype(np.float32)
-    off[_LATTICE_CHECK:] += np.float32(0.1)
+    off[_LATTICE_CHECK + 8 :: 32] += np.float32(0.1)
     assert value_lattice(off) is None
 
 

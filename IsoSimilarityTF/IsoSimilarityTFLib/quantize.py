@@ -17,6 +17,8 @@ _MAX_LOOKUP_SPAN = 1 << 22
 _LATTICE_PROBE = 1 << 16
 _LATTICE_CHECK = 1 << 18
 _LATTICE_TOLERANCE = 0.01
+# A float volume's extremes (the range's ends) lie within this many float32 ulps of their lattice values.
+_RANGE_ULPS = 4
 # Voxels looked up at once: small enough that the index array stays in cache.
 _LOOKUP_CHUNK = 1 << 20
 #: Largest magnitude of a value range: the design sums values weighted by voxel counts (up to 2^64) and takes their
@@ -207,24 +209,25 @@ def values_per_bin(
     histogram of such data is that pattern times the tissues' density. None beyond the span :func:`bin_volume` bins
     through a lookup table, where every bin holds thousands and they differ by one.
 
-    ``stored``: values of the volume (a sample, any shape). A lattice value they hold lies where its stored value
-    does: on a bin's edge (or the range's), float32 rounds it either way (``k * 0.13`` computed in float32 or in
-    float64), and which way moves it to the next bin.
+    ``stored``: values of the volume (a sample, any shape). For a float storage, a lattice value they hold lies where
+    its stored value does: on a bin's edge (or the range's), float32 rounds it either way (``k * 0.13`` computed in
+    float32 or in float64), and which way moves it to the next bin. A lattice value they do not hold is in the range
+    within a few float32 ulps of its ends (a float volume's extremes, rounded). Integers are exact.
     """
     low, high = value_range
     origin, step = lattice
-    # The range's ends are stored values, rounded as the storage rounds them (float32): within the tolerance.
+    floats = stored is not None and not np.issubdtype(np.asarray(stored).dtype, np.integer)
+    slack = _RANGE_ULPS * float(np.finfo(np.float32).eps) * max(abs(low), abs(high)) if floats else 0.0
     with np.errstate(over="ignore", invalid="ignore"):
-        first = np.ceil((low - origin) / step - _LATTICE_TOLERANCE)
-        last = np.floor((high - origin) / step + _LATTICE_TOLERANCE)
+        first = np.ceil((low - slack - origin) / step)
+        last = np.floor((high + slack - origin) / step)
         if not 0 <= last - first < _MAX_LOOKUP_SPAN:  # also False for an overflow to inf, or NaN
             return None
     # Not np.arange(first, ...): beyond 2^53 its float64 steps of one add nothing, and every value is the first.
     values = origin + step * (first + np.arange(last - first + 1, dtype=np.float64))
     bins = _bin_index(values, value_range, n_bins)
     in_range = np.ones(values.size, dtype=bool)
-    # Integers (below 2^53) are their lattice values exactly: nothing to look up.
-    if stored is not None and not np.issubdtype(np.asarray(stored).dtype, np.integer):
+    if floats:
         seen = _spread(np.asarray(stored).ravel(), _LATTICE_CHECK).astype(np.float64)
         index = np.rint((seen - origin) / step) - first
         on_lattice = (index >= 0) & (index < values.size)
@@ -235,8 +238,8 @@ def values_per_bin(
 
 
 def _spread(values: np.ndarray, count: int) -> np.ndarray:
-    """About ``count`` (``count`` to ``2 * count``) of ``values`` ``(n,)``, evenly spaced over them: a volume's first
-    planes may all be padding."""
+    """``count`` to ``2 * count`` of ``values`` ``(n,)`` (all of them when fewer), evenly spaced over them: a volume's
+    first planes may all be padding."""
     return values[:: max(1, values.size // count)]
 
 

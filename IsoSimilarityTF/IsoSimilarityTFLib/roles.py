@@ -8,16 +8,18 @@ Roles, in the order they are decided (the first that applies):
 - ``"background"``: the background class (the thesis' rule: the largest class; see :mod:`.classes`).
 - ``"fog"``: noise in the background: the class's mean bin lies within :attr:`LookRules.fog_separation` noise widths
   (:func:`noise_width`) of the background's, either side (a micro-CT's noisy air, the haze of an MRI), and so does its
-  tissue (the tissue *is* at the background's intensity: noisy air, haze; see :func:`tissues_at`), or most of its
-  voxels touch the background (:attr:`LookRules.rim_contact`: noise scattered in the air). A low class of a tissue that
-  stands apart from the background (its largest class and most of its voxels), which does not touch it, is that
-  tissue's darker part or partial volume (the outer cortex of a skull-stripped brain), not noise. Whether a tissue
+  tissue (the tissue *is* at the background's intensity: noisy air, haze): its largest class, or most of its voxels
+  (:attr:`LookRules.located_share`); or most of its voxels touch the background (:attr:`LookRules.rim_contact`: noise
+  scattered in the air). A low class of a tissue that stands apart from the background (its largest class and most
+  of its voxels), which does not touch it, is that tissue's darker part or partial volume (the outer cortex of a
+  skull-stripped brain), not noise. Whether a tissue
   lies at the background's intensity is counted in the background's noise (:func:`fog_width`): a background of one
   stored value has none, and the tissue next to it is then measured by the voxels' noise (a flame's faint envelope
   around its empty space); noisy air on CT-like data is at least as wide as the voxels' noise (the model may fit its
   tails narrower).
-  Where every structure (a real tissue not at the background's intensity) lies on one side of the background, a
-  class of a tissue at the background's intensity on the other side is fog however far out it lies
+  Where every structure (a real tissue whose largest class is not at the background's intensity) lies on one side of
+  the background, a class of a tissue whose largest class is at the background's intensity on the other side is fog
+  however far out it lies
   (:func:`beyond_structures`): it is that noise's tail, with nothing beyond it (the air around a micro-CT's tube of
   ethanol, the ethanol the background). No look shows fog.
 - ``"dense"``: a class whose mean lies :attr:`LookRules.dense_separation` noise widths above the *main material*,
@@ -68,10 +70,11 @@ class LookRules:
             the background's mean is at the background's intensity, as noise in it would be: two Gaussians 4 sd
             apart overlap by under 2.5 % (fog when its tissue is there too, or it touches the background: see the
             module notes).
-        located_share: a tissue lies at an intensity where more than this share of its voxels do (its median), or
-            its largest class does (the peak of its histogram): where classes of near-equal size share a tissue
-            (a skull-stripped brain's CSF and the cortex's edge), which one is largest changes with the storage,
-            and the median does not.
+        located_share: a tissue lies at the background's intensity where more than this share of its voxels do
+            (its median), or its largest class does (the peak of its histogram): where classes of near-equal size
+            share a tissue (a skull-stripped brain's CSF and the cortex's edge), which one is largest changes with
+            the storage, and the median does not. Decides fog within the fog's width only: beyond it a tissue
+            whose peak stands apart is a structure.
         dense_separation: a real tissue this many noise widths above another is a different, denser material (bone
             over soft tissue), not a brighter shade of the same one (white over grey matter): it decides the dense
             classes (counted in :func:`noise_width`), a CT's dense tail and which tissues a feature is seen through.
@@ -238,14 +241,20 @@ def class_roles(
     distance = np.abs(class_bins - background_bin)
     near = distance < rules.fog_separation * noise_sd
     at_background = distance < rules.fog_separation * (noise_sd if fog_sd is None else fog_sd)
-    tissue_at_background = tissues_at(tissue_of_class, voxels, at_background, rules)
-    beyond = beyond_structures(classes, tissue_of_class, class_bins, ~tissue_at_background, rules)
+    # Where a tissue lies: its largest class (the peak of its histogram), or for a class within the fog also most of
+    # its voxels (the median). Beyond the fog, a tissue whose peak stands apart is a structure (bone whose
+    # partial volume with a cropped CT's soft tissue is most of its voxels).
+    peak_at_background = at_background[[largest_class(tissue_of_class, voxels, t) for t in tissue_of_class]]
+    tissue_at_background = peak_at_background | mostly_at(tissue_of_class, voxels, at_background, rules)
+    beyond = beyond_structures(classes, tissue_of_class, class_bins, ~peak_at_background, rules)
     roles = []
     for c in classes:
         if c.background:
             roles.append("background")
-        elif ((at_background[c.id] or beyond[c.id]) and tissue_at_background[c.id]) or (
-            near[c.id] and c.background_contact > rules.rim_contact
+        elif (
+            (at_background[c.id] and tissue_at_background[c.id])
+            or (beyond[c.id] and peak_at_background[c.id])
+            or (near[c.id] and c.background_contact > rules.rim_contact)
         ):
             roles.append("fog")
         elif c.id in dense:
@@ -294,9 +303,9 @@ def in_real_tissue(
     return tissue_voxels[tissue_of_class] >= rules.real_share * max(counted.sum(), 1.0)
 
 
-def tissues_at(tissue_of_class: np.ndarray, voxels: np.ndarray, at: np.ndarray, rules: LookRules = RULES) -> np.ndarray:
-    """``(n_classes,)`` whether the tissue of each class lies where ``at`` holds (:attr:`LookRules.located_share`):
-    where its largest class does, or more than that share of its voxels.
+def mostly_at(tissue_of_class: np.ndarray, voxels: np.ndarray, at: np.ndarray, rules: LookRules = RULES) -> np.ndarray:
+    """``(n_classes,)`` whether more than :attr:`LookRules.located_share` of the voxels of each class's tissue lie
+    where ``at`` holds (its median does).
 
     Args:
         tissue_of_class: ``(n_classes,)`` tissue id per class. voxels: ``(n_classes,)``. at: ``(n_classes,)`` bool,
@@ -304,12 +313,9 @@ def tissues_at(tissue_of_class: np.ndarray, voxels: np.ndarray, at: np.ndarray, 
     """
     tissue_of_class = np.asarray(tissue_of_class)
     voxels = np.asarray(voxels, dtype=np.float64)
-    at = np.asarray(at, dtype=bool)
-    by_peak = at[[largest_class(tissue_of_class, voxels, t) for t in tissue_of_class]]
-    held = np.bincount(tissue_of_class, weights=np.where(at, voxels, 0.0))
+    held = np.bincount(tissue_of_class, weights=np.where(np.asarray(at, dtype=bool), voxels, 0.0))
     total = np.bincount(tissue_of_class, weights=voxels)
-    by_median = held > rules.located_share * total
-    return by_peak | by_median[tissue_of_class]
+    return (held > rules.located_share * total)[tissue_of_class]
 
 
 def largest_class(tissue_of_class: np.ndarray, voxels: np.ndarray, tissue: int) -> int:
