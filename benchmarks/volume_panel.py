@@ -254,15 +254,12 @@ def windowed_8bit(
     were 8-bit), or an auto-contrast window (0.5th to 99.5th percentile: the air's lowest noise saturated too).
     Labels and names unchanged; no HU map."""
 
-    def exported() -> tuple:
-        values, ijk_to_ras, labels, names, _storage = load()
-        values = np.asarray(values, dtype=np.float64)
+    def exported(values: np.ndarray) -> np.ndarray:
         low = float(values.min() if bottom_percentile is None else np.percentile(values, bottom_percentile))
         high = float(np.percentile(values, top_percentile))
-        stored = np.round(np.clip((values - low) / (high - low), 0.0, 1.0) * 255.0).astype(np.uint8)
-        return stored, ijk_to_ras, labels, names, None
+        return np.round(np.clip((values - low) / (high - low), 0.0, 1.0) * 255.0).astype(np.uint8)
 
-    return exported
+    return _restored(load, exported)
 
 
 def hu_windowed_8bit(load: Callable[[], tuple], window_hu: tuple[float, float]) -> Callable[[], tuple]:
@@ -285,13 +282,11 @@ def rescaled_uint16(load: Callable[[], tuple], top: int) -> Callable[[], tuple]:
     few hundred values; with ``top`` 300, more values than 256 bins, and fewer than two per bin, so bins hold one or
     two). Labels and names unchanged; no HU map."""
 
-    def stored() -> tuple:
-        values, ijk_to_ras, labels, names, _storage = load()
-        values = np.asarray(values, dtype=np.float64)
+    def stored(values: np.ndarray) -> np.ndarray:
         low, high = float(values.min()), float(values.max())
-        return np.round((values - low) * (top / (high - low))).astype(np.uint16), ijk_to_ras, labels, names, None
+        return np.round((values - low) * (top / (high - low))).astype(np.uint16)
 
-    return stored
+    return _restored(load, stored)
 
 
 def slope_scaled(load: Callable[[], tuple], slope: float, intercept: float) -> Callable[[], tuple]:
@@ -299,12 +294,17 @@ def slope_scaled(load: Callable[[], tuple], slope: float, intercept: float) -> C
     stored with a NIfTI ``scl_slope`` or a DICOM rescale slope (the integers' lattice, scaled). Labels and names
     unchanged; no HU map."""
 
-    def scaled() -> tuple:
-        values, ijk_to_ras, labels, names, _storage = load()
-        scaled_values = (np.asarray(values, dtype=np.float64) * slope + intercept).astype(np.float32)
-        return scaled_values, ijk_to_ras, labels, names, None
+    return _restored(load, lambda values: (values * slope + intercept).astype(np.float32))
 
-    return scaled
+
+def _restored(load: Callable[[], tuple], store: Callable[[np.ndarray], np.ndarray]) -> Callable[[], tuple]:
+    """``load`` with its values (as float64) stored again by ``store``; labels and names unchanged, no HU map."""
+
+    def restored() -> tuple:
+        values, ijk_to_ras, labels, names, _storage = load()
+        return store(np.asarray(values, dtype=np.float64)), ijk_to_ras, labels, names, None
+
+    return restored
 
 
 # ---------------------------------------------------------------------------------------------------------------
