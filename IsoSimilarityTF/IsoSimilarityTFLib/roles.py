@@ -12,14 +12,12 @@ Roles, in the order they are decided (the first that applies):
   (:attr:`LookRules.located_share`); or most of its voxels touch the background (:attr:`LookRules.rim_contact`: noise
   scattered in the air). A low class of a tissue that stands apart from the background (its largest class and most
   of its voxels), which does not touch it, is that tissue's darker part or partial volume (the outer cortex of a
-  skull-stripped brain), not noise. Whether a tissue
-  lies at the background's intensity is counted in the background's noise (:func:`fog_width`): a background of one
-  stored value has none, and the tissue next to it is then measured by the voxels' noise (a flame's faint envelope
-  around its empty space); noisy air on CT-like data is at least as wide as the voxels' noise (the model may fit its
-  tails narrower).
-  Where every structure (a real tissue whose largest class is not at the background's intensity) lies on one side of
-  the background, a class of a tissue whose largest class is at the background's intensity on the other side is fog
-  however far out it lies
+  skull-stripped brain), not noise. Whether a tissue lies at the background's intensity is counted in the
+  background's noise (:func:`fog_width`): a background of one stored value has none, and the tissue next to it is
+  then measured by the voxels' noise (a flame's faint envelope around its empty space); noisy air on CT-like data is
+  at least as wide as the voxels' noise (the model may fit its tails narrower). Where every structure (a real tissue
+  whose largest class is not at the background's intensity) lies on one side of the background, a class of a tissue
+  whose largest class is at the background's intensity on the other side is fog however far out it lies
   (:func:`beyond_structures`): it is that noise's tail, with nothing beyond it (the air around a micro-CT's tube of
   ethanol, the ethanol the background). No look shows fog.
 - ``"dense"``: a class whose mean lies :attr:`LookRules.dense_separation` noise widths above the *main material*,
